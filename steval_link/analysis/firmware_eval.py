@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -66,10 +66,8 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
     n = int(math.floor(max_seconds * trial.fs_hz)) + 1
     if n >= trial.acc_mps2.shape[0]:
         return trial
-    n = max(n, 2)
-    return BroadTrial(
-        trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n], trial.movement[:n]
-    )
+    cut = slice(max(n, 2))
+    return replace(trial, **{k: getattr(trial, k)[cut] for k in ("acc_mps2", "gyr_radps", "quat_wxyz", "movement")})
 
 
 @dataclass
@@ -119,7 +117,7 @@ class FirmwareResult:
     def instructions_summary(self) -> dict[str, float | None]:
         a = self.instructions
         if a.size == 0:
-            return {"median": None, "mean": None, "min": None, "max": None}
+            return dict.fromkeys(("median", "mean", "min", "max"))
         return {
             "median": float(np.median(a)),
             "mean": round(float(np.mean(a)), 1),
@@ -152,12 +150,8 @@ class _Globals:
     """The firmware's attitude globals read by symbol at each AHRS step's start (inputs) and end (outputs)."""
 
     def __init__(self, emu: Emulation) -> None:
-        e = emu.elf
-        self.euler = e.addr("euler_ahrs")
-        self.ahrs = e.addr("ahrs")
-        self.acc = e.addr("acc_ahrs")
-        self.gyro = e.addr("gyro_ahrs")
-        self.thr = e.addr("gTHR")
+        names = ("euler_ahrs", "ahrs", "acc_ahrs", "gyro_ahrs", "gTHR")
+        self.euler, self.ahrs, self.acc, self.gyro, self.thr = (emu.elf.addr(name) for name in names)
         self.inputs: list[tuple[float, ...]] = []
         self.outputs: list[tuple[float, ...]] = []
         emu.step_start_observers.append(self._start)
@@ -242,23 +236,10 @@ def run_firmware(
             "(an ELF with its symbols, not a stripped .bin/.hex)"
         )
     err, rmse = score_euler(out.thx, out.thy, truth.q_wxyz, truth.movement)
-    res = FirmwareResult(
-        label,
-        str(elf),
-        trial.name,
-        out.source,
-        truth,
-        out.thx,
-        out.thy,
-        err,
-        rmse,
-        np.asarray(report.step_instructions, np.int64),
-        settings=out.settings,
-        emulated_s=report.emulated_s,
-        notes=out.notes,
-        gains=out.gains,
-        wall_s=time.perf_counter() - t0,
-    )
+    instructions = np.asarray(report.step_instructions, np.int64)
+    res = FirmwareResult(label, str(elf), trial.name, out.source, truth, out.thx, out.thy, err, rmse, instructions)
+    res.settings, res.emulated_s, res.notes, res.gains = out.settings, report.emulated_s, out.notes, out.gains
+    res.wall_s = time.perf_counter() - t0
     if out.replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(out.replica_thx, out.replica_thy, truth.q_wxyz, truth.movement)
         res.replica_bit_exact, res.replica_steps = out.replica_exact, out.replica_steps
