@@ -30,9 +30,7 @@ _STATUS_COLUMNS = (
 
 def attitude_table(tel) -> dict[str, np.ndarray]:
     """The CSV's columns: one row per attitude frame, flight-control columns joined on by step (NaN elsewhere)."""
-    table = tel.attitude_table()
-    table.update(tel.flight_columns())
-    return table
+    return tel.attitude_table() | tel.flight_columns()
 
 
 def status_table(tel) -> dict[str, np.ndarray]:
@@ -141,7 +139,6 @@ def header_of(tel) -> dict[str, Any]:
     """The capture header (``port``, ``baud``, ``start_time_utc``, ``tool_version``, ``extra``) and the file's
     ``path`` and ``kind``."""
     src = tel.source or {}
-    header = dict(src.get("header") or {})
-    header["path"] = str(src.get("path") or "")
-    header["kind"] = str(src.get("kind") or "")
-    return _plain(header)
+    return _plain(
+        dict(src.get("header") or {}) | {"path": str(src.get("path") or ""), "kind": str(src.get("kind") or "")}
+    )

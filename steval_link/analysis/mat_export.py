@@ -64,9 +64,6 @@ def write_mat(
     """Write ``tables`` (frame type → column → array, e.g. :func:`steval_link.analysis.frame_tables.frame_tables`),
     ``settings`` and ``header`` as one MATLAB (v5) file ``out`` (a path or a binary file)."""
     savemat = require_scipy()
-    data: dict[str, Any] = {}
-    for kind, table in tables.items():
-        data[mat_name(kind)] = {mat_name(col): _value(np.asarray(v)) for col, v in table.items()}
-    data["settings"] = _value(settings)
-    data["header"] = _value(header)
+    data = {mat_name(kind): {mat_name(c): _value(np.asarray(v)) for c, v in t.items()} for kind, t in tables.items()}
+    data |= {"settings": _value(settings), "header": _value(header)}
     savemat(out, data, appendmat=False, long_field_names=True, do_compression=False, oned_as="column")

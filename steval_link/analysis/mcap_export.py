@@ -318,16 +318,10 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _INDEX_HEAD = struct.Struct("<BQHI")
-_MESSAGE_DTYPE = np.dtype(
-    [
-        ("opcode", "u1"),
-        ("length", "<u8"),
-        ("channel", "<u2"),
-        ("seq", "<u4"),
-        ("log_time", "<u8"),
-        ("publish_time", "<u8"),
-    ]
-)  # packed: 31 bytes, a message record's head
+_MESSAGE_DTYPE = np.dtype(  # packed: 31 bytes, a message record's head
+    [("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("seq", "<u4")]
+    + [("log_time", "<u8"), ("publish_time", "<u8")]
+)
 
 
 class McapWriter:
