@@ -67,9 +67,7 @@ class Coverage:
 
 def percent(fraction: float | None) -> str:
     """``63 %``, rounded down (99.97 % is not called 100 %)."""
-    if fraction is None:
-        return "—"
-    return f"{math.floor(fraction * 100 + 1e-9):d} %"
+    return "—" if fraction is None else f"{math.floor(fraction * 100 + 1e-9):d} %"
 
 
 def _at(t_s: float | None) -> str:

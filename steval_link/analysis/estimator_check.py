@@ -242,8 +242,7 @@ def _check_invalid(name):
 def _check_determinism(name):
     acc, gyro = _held(5.0, -8.0, 3.0, 6)
     (acc2, gyro2), _ = _turn(6)
-    acc = np.concatenate([acc, acc2])
-    gyro = np.concatenate([gyro, gyro2])
+    acc, gyro = np.concatenate([acc, acc2]), np.concatenate([gyro, gyro2])
     a = registry.create(name).run(acc, gyro)
     b = registry.create(name).run(acc, gyro)
     est = registry.create(name)
@@ -274,8 +273,7 @@ def _check_speed(name, demo_inputs):
 
 
 def _demo_inputs():
-    tel = telemetry_of_recording(read_recording(demo_capture_path()))
-    a = tel.attitude
+    a = telemetry_of_recording(read_recording(demo_capture_path())).attitude
     return a.acc_mg, a.gyro_mdps, a.thr
 
 
@@ -315,9 +313,7 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
         rows = np.asarray(a.exact, bool)
         if rows.sum() < C.AHRS_RATE_HZ:  # text-mode or almost empty: no firmware quaternion to compare with
             continue
-        acc = np.asarray(a.acc_mg)[rows]
-        gyro = np.asarray(a.gyro_mdps)[rows]
-        thr = np.asarray(a.thr)[rows]
+        acc, gyro, thr = (np.asarray(v)[rows] for v in (a.acc_mg, a.gyro_mdps, a.thr))
         q_fw = np.asarray(a.q_wxyz, np.float64)[rows]
         tx, ty, tv = accel_tilt(acc)
         q_acc = tilt_quaternion(tx, ty)

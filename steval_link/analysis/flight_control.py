@@ -88,8 +88,7 @@ def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
     ``angles_rad`` (N, 3) = thx, thy, thz of the step."""
     rc = np.asarray(euler_rc_rad, dtype=np.float32).reshape(-1, 3)
     ang = np.asarray(angles_rad, dtype=np.float32).reshape(-1, 3)
-    kp = np.asarray(C.OUTER_KP, dtype=np.float32)
-    return kp * (rc - ang)
+    return np.asarray(C.OUTER_KP, dtype=np.float32) * (rc - ang)
 
 
 def no_flight_figure_reason(fc) -> str | None:

@@ -52,15 +52,12 @@ def rate_stats(tel) -> RateStats:
     kw: dict[str, Any] = {}
     if len(s):
         n_cyc = np.asarray(s.cyc_n, dtype=np.float64)
-        have = n_cyc > 0
-        if have.any():
+        weighted = bool(np.any(n_cyc > 0))  # else (no step counts) each frame weighs the same
+        have = n_cyc > 0 if weighted else np.ones(len(s), bool)
+        if weighted or np.any(s.cyc_mean > 0):
             kw["ahrs_cycles_min"] = int(np.min(s.cyc_min[have]))
             kw["ahrs_cycles_max"] = int(np.max(s.cyc_max[have]))
-            kw["ahrs_cycles_mean"] = float(np.sum(s.cyc_mean[have] * n_cyc[have]) / np.sum(n_cyc[have]))
-        elif np.any(s.cyc_mean > 0):
-            kw["ahrs_cycles_min"] = int(np.min(s.cyc_min))
-            kw["ahrs_cycles_max"] = int(np.max(s.cyc_max))
-            kw["ahrs_cycles_mean"] = float(np.mean(s.cyc_mean))
+            kw["ahrs_cycles_mean"] = float(np.average(s.cyc_mean[have], weights=n_cyc[have] if weighted else None))
         cpu = np.asarray(s.cpu_hz)[np.asarray(s.exact, bool)] if np.any(s.exact) else np.zeros(0)
         cpu = cpu[cpu > 0]
         kw["cpu_hz"] = int(cpu[-1]) if cpu.size else (C.CPU_HZ if kw.get("ahrs_cycles_mean") else None)
