@@ -63,34 +63,23 @@ class PreflightReport:
         return not self.problems
 
     def text(self) -> str:
-        verdict = (
-            "PASS: every check is OK."
-            if self.passed
-            else f"FAIL: {len(self.problems)} problem{'s' if len(self.problems) > 1 else ''}:"
-        )
-        out = list(self.lines) + ["", verdict] + [f"  - {p}" for p in self.problems]
-        return "\n".join(out)
+        n = len(self.problems)
+        verdict = "PASS: every check is OK." if self.passed else f"FAIL: {n} problem{'s' if n > 1 else ''}:"
+        return "\n".join([*self.lines, "", verdict] + [f"  - {p}" for p in self.problems])
 
 
 def _smooth(x: np.ndarray, n: int) -> np.ndarray:
-    if n <= 1 or len(x) < n:
-        return x
-    k = np.ones(n) / n
-    return np.convolve(x, k, mode="same")
+    return x if n <= 1 or len(x) < n else np.convolve(x, np.ones(n) / n, mode="same")
 
 
 def _bursts(t_s: np.ndarray, gyro_dps: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
     """(start, end, integrated rotation deg (3,)) of each burst of rotation, in order."""
-    mag = _smooth(np.linalg.norm(gyro_dps, axis=1), 16)
-    active = mag > _BURST_DPS
-    # merge gaps shorter than 0.25 s
-    idx = np.flatnonzero(active)
+    idx = np.flatnonzero(_smooth(np.linalg.norm(gyro_dps, axis=1), 16) > _BURST_DPS)
     if len(idx) == 0:
         return []
-    dt = np.diff(t_s, prepend=t_s[0])
-    dt = np.clip(dt, 0.0, 0.05)
+    dt = np.clip(np.diff(t_s, prepend=t_s[0]), 0.0, 0.05)
     out = []
-    for run in np.split(idx, np.flatnonzero(np.diff(t_s[idx]) > 0.25) + 1):
+    for run in np.split(idx, np.flatnonzero(np.diff(t_s[idx]) > 0.25) + 1):  # gaps under 0.25 s merged
         a, b = run[0], run[-1] + 1
         rot = (gyro_dps[a:b] * dt[a:b, None]).sum(axis=0)
         if np.linalg.norm(rot) >= _MIN_MOVE_DEG:
@@ -112,8 +101,8 @@ def _pair_moves(bursts):
     return pairs
 
 
-def _fmt(v: float, unit: str = "°") -> str:
-    return f"{v:+.1f}{unit}"
+def _fmt(v: float) -> str:
+    return f"{v:+.1f}°"
 
 
 def check_preflight(tel, source: str = "") -> PreflightReport:
@@ -280,9 +269,8 @@ def _fc_window(fc, steps: np.ndarray, a: int, b: int) -> np.ndarray:
 
 def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int, b0: int, steps) -> None:
     pre = _fc_window(fc, steps, max(a0 - 160, 0), a0)
+    # yaw while turning: below MIN_THR the firmware resets its yaw angle and target, so only the rate loop sees it
     if mv.axis == 2:
-        # yaw: while turning (below MIN_THR the firmware resets its yaw angle and target, so a held turn shows
-        # nothing; the rate loop sees the turn itself)
         hold = _fc_window(fc, steps, a0, a1)
     else:
         hold = _fc_window(fc, steps, a1 + (b0 - a1) // 4, a1 + 3 * (b0 - a1) // 4 + 1)
@@ -293,12 +281,11 @@ def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int,
     name = "xyz"[ax]
     want = -mv.sign  # the controller must push back
     s1 = float(np.mean(fc.outer_s1_radps[hold, ax]))
-    ok1 = np.sign(s1) == want and abs(s1) > 1e-3
-    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
-        ok1 = True  # below MIN_THR the firmware holds its yaw angle and target at 0: z_s1 is 0
+    idle_yaw = ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR)  # the firmware holds yaw and its target at 0
+    ok1 = idle_yaw or (np.sign(s1) == want and abs(s1) > 1e-3)
     armed = bool(np.all(fc.fc_flags[hold] & 1))
     line = f"  controller: outer {name}_s1 {s1:+.2f} rad/s"
-    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
+    if idle_yaw:
         line += " (0 below MIN_THR: the firmware resets its yaw angle and target)"
     if armed:
         ds2 = float(np.mean(fc.inner_s2_pwm[hold, ax]) - (np.mean(fc.inner_s2_pwm[pre, ax]) if len(pre) else 0.0))
