@@ -340,7 +340,8 @@ def _vec(v, fmt: str = ".6g") -> str:
     return "(" + ", ".join(format(float(x), fmt) for x in np.asarray(v).reshape(-1)) + ")"
 
 
-def _norm(q) -> float:
+def q_norm(q) -> float:
+    """|q| in float64 (inf or NaN for a non-finite q, without a warning)."""
     q = np.asarray(q, dtype=np.float64)
     with np.errstate(over="ignore", invalid="ignore"):
         return float(np.sqrt((q * q).sum()))
@@ -381,7 +382,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
             replica_state = "finite"
     nonfinite = not np.isfinite(q).all()
     what = "went non-finite" if nonfinite else "left the unit sphere"
-    how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
+    how = "" if nonfinite else f", |q| = {q_norm(q):.6g}"
     text = [
         f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
         f"release keeps |q| ≈ 0.9983)"
@@ -400,7 +401,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         "step": step,
         "t_fw_s": json_number(t_fw),
         "q_wxyz": [json_number(x) for x in q],
-        "q_norm": json_number(_norm(q)),
+        "q_norm": json_number(q_norm(q)),
         "first_nonfinite_step": first_nan,
         "inputs": inputs,
         "replica": replica_state,
@@ -415,7 +416,7 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
     if state == "finite":
         return (
             f"the bit-exact replica stayed finite on the same inputs (q = {_vec(q)}, |q| = "
-            f"{_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+            f"{q_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
             "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
             "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the replica "
             "handles, so none was searched)"

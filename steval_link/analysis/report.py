@@ -100,15 +100,8 @@ class TraceComparison:
     note: str = ""
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "label": self.label,
-            "available": self.available,
-            "pitch_thx": self.pitch.as_dict(),
-            "roll_thy": self.roll.as_dict(),
-            "n_invalid": self.n_invalid,
-            "note": self.note,
-        }
+        renamed = {"pitch": "pitch_thx", "roll": "roll_thy"}
+        return {renamed.get(k, k): v.as_dict() if isinstance(v, AngleStats) else v for k, v in vars(self).items()}
 
 
 @dataclass(frozen=True)

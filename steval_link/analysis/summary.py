@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.analysis.diagnosis import recognise_release
+from steval_link.analysis.diagnosis import q_norm, recognise_release
 from steval_link.analysis.report import fmt_number, json_number
 from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
@@ -78,9 +78,7 @@ def q_norm_report(tel) -> dict[str, Any] | None:
     if not off.any():
         return None
     i = int(np.argmax(off))
-    q = np.asarray(a.q_wxyz[i], np.float64)
-    with np.errstate(over="ignore", invalid="ignore"):
-        norm = float(np.sqrt((q * q).sum()))
+    norm = q_norm(a.q_wxyz[i])
     n = int(off.sum())
     how = f"|q| = {norm:.4g}" if np.isfinite(norm) else "non-finite"
     text = (
@@ -261,8 +259,7 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     n_text = s["frames"]["text"]
     if n_text:
         shown = s["text_lines"][:max_text_lines]
-        lines.append(f"text lines ({n_text}):")
-        lines.extend(f"  | {t}" for t in shown)
+        lines += [f"text lines ({n_text}):"] + [f"  | {t}" for t in shown]
         if n_text > len(shown):
             lines.append(f"  | ... {n_text - len(shown)} more")
     return lines + [f"warning: {w}" for w in s["warnings"]]
@@ -277,9 +274,8 @@ def _source_lines(s: dict[str, Any]) -> list[str]:
             f"  recorded from {src.get('port')} at {src.get('baud')} baud, start {src.get('start_time_utc')}, "
             f"steval-link {src.get('tool_version')}"
         )
-    kinds = f"{f['attitude_binary']} binary"
-    if f["attitude_text_mode"]:
-        kinds += f", {f['attitude_text_mode']} text-mode"
+    text_mode = f["attitude_text_mode"]
+    kinds = f"{f['attitude_binary']} binary" + (f", {text_mode} text-mode" if text_mode else "")
     fc = ""
     if f.get("flight_control"):
         every = f.get("flight_control_every")
@@ -447,8 +443,7 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
             f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
             "unknown-characteristic notifications"
         )
-    for e in s["events"]:
-        lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
+    lines += [f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip() for e in s["events"]]
     rng = s.get("attitude_deg_range")
     if rng:
         lines.append(
