@@ -115,7 +115,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
 
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
-    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
+    fw = _degrees(a.thx_rad, a.thy_rad)
     fs = report.filter_settings or {}
     min_thr = fs["min_thr"] if isinstance(fs.get("min_thr"), int) else C.MIN_THR
     replica = _replica_degrees(report, t.shape[0])
@@ -138,8 +138,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
         )
     _restart_lines((ax_p, ax_r, ax_d), t, a.step)
     _comparison_legend(fig, ax_p)
-    plt.setp(ax_p.get_xticklabels(), visible=False)
-    plt.setp(ax_r.get_xticklabels(), visible=False)
+    plt.setp([*ax_p.get_xticklabels(), *ax_r.get_xticklabels()], visible=False)
     _replica_panel(ax_d, t, fw, replica, report)
     _throttle_twin(ax_d, t, thr, min_thr)
     _difference_bars(ax_b, ax_txt, report)
@@ -160,15 +159,17 @@ def comparison_figure(tel, report, *, title: str | None = None):
     return fig
 
 
+def _degrees(thx_rad, thy_rad) -> dict[str, np.ndarray]:
+    """Pitch (thx, about x) and roll (thy, about y) in degrees, float64."""
+    return {"pitch": np.degrees(np.asarray(thx_rad, np.float64)), "roll": np.degrees(np.asarray(thy_rad, np.float64))}
+
+
 def _replica_degrees(report, n: int) -> dict[str, np.ndarray] | None:
     """The seeded replica's pitch and roll in degrees on the capture's rows (NaN where it did not run)."""
     if report.replay is None:
         return None
     rows, rep = report.replica_rows, report.replay
-    return {
-        "pitch": on_rows(n, rows, np.degrees(rep.thx_rad.astype(np.float64))),
-        "roll": on_rows(n, rows, np.degrees(rep.thy_rad.astype(np.float64))),
-    }
+    return _degrees(on_rows(n, rows, rep.thx_rad), on_rows(n, rows, rep.thy_rad))
 
 
 def _estimate_traces(report) -> list[tuple[str, str, dict[str, np.ndarray], tuple]]:
@@ -230,15 +231,14 @@ def _centre_text(ax, text: str, **kw) -> None:
 
 def _replica_panel(ax, t, fw, replica, report) -> None:
     """Firmware − replica in degrees: unseeded rows greyed, bit-exact said in words, the first difference marked."""
+    ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
     if replica is None:
         _centre_text(ax, "text-mode capture: the bit-exact replica needs binary frames", fontsize=10)
-        ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
         return
     p = report.replica
-    ax.plot(*_decimate(t, _wrap_deg(fw["pitch"] - replica["pitch"])), color="tab:blue", lw=0.9,
-            label="pitch: firmware − replica")  # fmt: skip
-    ax.plot(*_decimate(t, _wrap_deg(fw["roll"] - replica["roll"])), color="tab:red", lw=0.9,
-            label="roll: firmware − replica")  # fmt: skip
+    for key, colour in (("pitch", "tab:blue"), ("roll", "tab:red")):
+        d = _wrap_deg(fw[key] - replica[key])
+        ax.plot(*_decimate(t, d), color=colour, lw=0.9, label=f"{key}: firmware − replica")
     covered, exact = np.zeros(t.shape[0], bool), np.zeros(t.shape[0], bool)
     covered[report.replica_rows] = report.replay.seeded
     exact[report.replica_rows] = report.replay.bit_exact
@@ -253,7 +253,6 @@ def _replica_panel(ax, t, fw, replica, report) -> None:
             ax.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}")
         _spans(ax, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
     ax.set_ylabel("firmware − replica [deg]")
-    ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
 
 
 def _throttle_twin(ax, t, thr, min_thr) -> None:
@@ -335,7 +334,7 @@ def differences_figure(tel, report, *, title: str | None = None):
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
-    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
+    fw = _degrees(a.thx_rad, a.thy_rad)
     fig, axes = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
     for ax, what, key in ((axes[0], "pitch (thx, about x)", "pitch"), (axes[1], "roll (thy, about y)", "roll")):
         for name, label, vals, (c, lw, ls, z) in _estimate_traces(report):
