@@ -1,13 +1,10 @@
 """``steval estimator check``: an estimator's interface checks, then its scores next to ST-Mahony and VQF.
 
-Each check runs on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward, z up,
-161.5 Hz steps, light noise from a fixed seed): shapes and a unit quaternion; level at rest; the pitch sign (20° nose
-up → thx ≈ +20°) and roll sign (thy ≈ +20°); a +20 dps turn about x (gyro units and sign); NaN, free fall and
-saturated inputs (no exception, finite at the end); determinism across instances and ``reset()``; and speed (live
-needs twice the stream's 161.5 steps/s).
-
-Scores: the RMS tilt difference (deg) from the firmware's attitude and from accel-only tilt on the bundled
-captures; the inclination RMSE against ground truth on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
+The checks run on inputs in the firmware's units (acc mg, gyro mdps, x right, y forward, z up, 161.5 Hz, seeded
+noise): shapes, level at rest, the pitch sign (20° nose up → thx ≈ +20°) and roll sign, a +20 dps turn about x, NaN,
+free fall and saturation, determinism across instances and ``reset()``, and speed (live needs 2 × 161.5 steps/s).
+Scores: RMS tilt difference (deg) from the firmware and from accel-only tilt on the bundled captures, and the
+inclination RMSE on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
 
 from __future__ import annotations
 

@@ -1,15 +1,10 @@
-"""A firmware ELF scored against ground truth (``steval evaluate --firmware``): it runs on the emulated board fed with
-a BROAD trial's motion, and its own ``thx``/``thy`` (pitch about x, roll about y) per AHRS step are scored like the
-Python estimators.
+"""A firmware ELF scored against ground truth (``steval evaluate --firmware``) on the emulated board fed with a BROAD
+trial's motion: its own ``thx``/``thy`` (pitch about x, roll about y) per AHRS step, scored like the estimators.
 
-The output comes from its attitude frames when it streams them (frame step ``i`` is the ``i``-th AHRS step), else
-from its globals read by symbol once per step: ``euler_ahrs`` (float thx, thy, thz) and ``ahrs`` (q0..q3) when the
-step ends, the inputs ``acc_ahrs`` / ``gyro_ahrs`` (float mg / mdps) and ``gTHR`` (int16) when it starts.
-
-Metric: the inclination error of ``quaternion_from_euler(thx, thy, 0)`` against the truth aligned per step
-(:class:`~steval_link.emulation.broad.StepTruth`), RMSE in degrees over the movement steps. The bit-exact replica
-runs on the firmware's own inputs and is scored the same way. Cost: emulated instructions per AHRS step, not M4
-cycles."""
+Its output comes from its attitude frames (frame step ``i`` is AHRS step ``i``), else from its globals read by symbol:
+``euler_ahrs`` and ``ahrs`` when a step ends, ``acc_ahrs``/``gyro_ahrs`` (mg/mdps) and ``gTHR`` when it starts.
+Metric: the inclination error of ``quaternion_from_euler(thx, thy, 0)`` against the per-step truth, RMSE in degrees
+over the movement steps; the replica runs on the firmware's own inputs. Cost: emulated instructions, not M4 cycles."""
 
 from __future__ import annotations
 
@@ -72,17 +67,9 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
 
 @dataclass
 class FirmwareResult:
-    """One firmware on one trial.
-
-    Attributes:
-        label: table label (:func:`firmware_labels`). elf: its path. trial: trial name.
-        source: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by symbol).
-        truth: per-step ground truth. thx_rad, thy_rad: (M,) float32 its output per step (NaN: none for that step).
-        err_rad: (M,) inclination error, rad. rmse_deg: RMSE over the movement steps, degrees.
-        instructions: (K,) instructions per AHRS step.
-        replica_rmse_deg: the replica's RMSE on the firmware's inputs (None: inputs unknown); replica_bit_exact of
-            replica_steps carry the firmware's bits. settings: the replica's settings (status frames, else defaults).
-        emulated_s: emulated seconds. gains: the gains it ran with, in words (:func:`gains_text`)."""
+    """One firmware on one trial: ``source`` "frames" or "globals" (read by symbol); ``thx_rad``, ``thy_rad`` (M,)
+    float32 per step (NaN: none); ``err_rad`` (M,) and ``rmse_deg`` over the movement steps; ``instructions`` (K,) per
+    AHRS step; the replica's RMSE on the firmware's inputs (None: inputs unknown), its bit-exact steps and settings."""
 
     label: str
     elf: str

@@ -1,9 +1,8 @@
 """The firmware's flight control (ST's ``flight_control.c``, ``rc.c``, ``motor.c``) recomputed on the host from a
 flight-control frame: the outer loop's P and I terms, the mixer, what each motor is and where it sits.
 
-Everything is float32 in the firmware's order of operations, so it comes out bit for bit: with ``ki1 = 0`` the outer
-loop ``s1`` is exactly ``P = kp1·(target − angle)`` for pitch and roll; yaw's ``thz`` is integrated in the ISR, so
-its P is close but not exact. The mixer of ``FlightControlPID_innerLoop``::
+Float32 in the firmware's order of operations, so bit for bit: with ``ki1 = 0`` the outer loop ``s1`` is exactly
+``P = kp1·(target − angle)`` for pitch and roll (yaw's ``thz`` is integrated in the ISR: close). The mixer::
 
     motor_thr = (int16)(0.05f·gTHR + 633.333f)
     motor1 = motor_thr − x_s2 − y_s2 + z_s2      (right rear,  clockwise)

@@ -1,12 +1,9 @@
-"""Flights side by side (``steval compare A.stv B.stv ...``): two or more captures on one time axis, labelled by
-what differs between them ("ki 0.1" against "ki 1, correction off"), each measured against its own
-accelerometer-only tilt.
+"""Flights side by side (``steval compare A.stv B.stv ...``) on one time axis (firmware time from each first frame,
+or the gyro cross-correlated), labelled by what differs ("ki 0.1" against "ki 1, correction off").
 
-Aligned by firmware time from each first frame, or by motion (the gyro cross-correlated with the first flight's).
-Figures per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt
-in the still phases, the drift (the mean error in the last still phase) and its rate (deg/min); each later flight
-minus the first. Mismatches (durations, BLE against serial, lost frames, a truncated capture) are notes, not errors.
-A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
+Per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt in the
+still phases, the drift (mean error in the last still phase) and its rate (deg/min); each later flight minus the
+first. Mismatches are notes, not errors. A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
 
 from __future__ import annotations
 
@@ -137,15 +134,9 @@ def labels_by_difference(flights: Sequence) -> list[str]:
 
 @dataclass
 class Flight:
-    """One capture on the common time axis.
-
-    Attributes:
-        path, label (the plot's, the viewer's and the JSON's name). kind: "serial" or "ble".
-        angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE).
-        t_s: (N,) s since the first frame, minus the motion lag. thx_rad, thy_rad: (N,) pitch (about x), roll (about y).
-        acc_mg, gyro_mdps: (N, 3) float32. q_wxyz: (N, 4) the attitude for the 3D view.
-        accel_thx_rad, accel_thy_rad: (N,) accel-only tilt. still: (N,) bool, the still rows.
-        settings: the first status frame's filter settings (None without). facts: capture-header facts."""
+    """One capture on the common time axis: ``kind`` "serial" or "ble"; ``angles`` "firmware" or "st-mahony replica";
+    ``t_s`` (N,) s since the first frame minus the lag; ``thx_rad``/``thy_rad`` pitch (about x)/roll (about y);
+    ``settings`` the first status frame's filter settings (None without); ``facts`` the capture header's."""
 
     path: Path
     label: str
