@@ -1,12 +1,9 @@
-"""Accuracy against ground truth: every estimator on BROAD trials (through the STEVAL sensor pipeline model, or at
-the trial's own rate) or on a capture with a ground-truth sidecar; inclination RMSE per trial and estimator.
+"""Accuracy against ground truth: every estimator (and a firmware ELF, :mod:`~steval_link.analysis.firmware_eval`) on
+BROAD trials, through the STEVAL sensor pipeline model or at the trial's own rate, or on a capture with ground truth.
 
-Metric: ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in degrees over
-the ``movement`` samples, ignoring NaN (occluded ground truth). A firmware ELF (``--firmware``) is one more column
-(:mod:`steval_link.analysis.firmware_eval`).
-
-A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int (``tel.attitude.step``), ``quat`` (M, 4) float wxyz
-body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all True)."""
+Metric: inclination error ``2·acos(√(w² + z²))`` of ``q_est ⊗ q_true⁻¹`` (earth frame), RMSE in degrees over the
+``movement`` samples, NaN (occluded truth) ignored. A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int,
+``quat`` (M, 4) wxyz body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all)."""
 
 from __future__ import annotations
 
@@ -502,12 +499,10 @@ def evaluate_data(
     variant: str | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> list[TrialResult]:
-    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and
-    each ``firmware`` ELF on the emulated board with each trial.
-
-    ``own_rate``: trials at their own rate, not through the STEVAL pipeline (``seed``; ``sensor_noise``: the LSM6DSL's
-    white noise); ``max_seconds``: each trial's first seconds; ``variant``: the replica's release on a firmware's
-    inputs; ``progress(fraction, stage)``. Every input is checked before the work."""
+    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and each
+    ``firmware`` ELF on the emulated board with each trial; every input is checked before the work. ``own_rate``:
+    not through the STEVAL pipeline (``sensor_noise``: the LSM6DSL's white noise); ``max_seconds``: each trial's
+    first seconds; ``variant``: the replica's release on a firmware's inputs."""
     items = broad.trial_paths(paths)
     n_specs = len(default_specs(100.0, only=estimators))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):

@@ -1,12 +1,10 @@
 """The preflight wiring check (``steval preflight``): guided hand moves checked against the firmware's own chain.
 
-Props off, armed at idle throttle (``gTHR`` just above ``MIN_THR``) or with the motors off, the user makes three
-moves, each out, hold, back (:data:`MOVES`): tilt right (roll, right side down: ``thy`` > 0), nose up (pitch:
-``thx`` > 0), turn right (yaw, clockwise from above: gyro z < 0). Each move is found in the gyro (bursts of rotation,
-paired out/back) and checked link by link: the sensor (axis and sign of the gyro, then of ``thx``/``thy``), the
-controller (``s1``, ``s2`` push back), the motors (each speeds up or slows down as the mixer says) and, over every
-frame with the motors on, that each output carries its own mixer line (a swapped motor order is named).
-Spin directions cannot be seen in the data: the report says what the mixer expects. At rest acc z must be ≈ +1 g."""
+Props off, armed at idle throttle or with the motors off, the user makes three moves (:data:`MOVES`), each out,
+hold, back: tilt right (roll: ``thy`` > 0), nose up (pitch: ``thx`` > 0), turn right (gyro z < 0). Each is found in
+the gyro and checked link by link: the sensor's axis and sign, then ``thx``/``thy``; the controller (``s1``, ``s2``
+push back); each motor against the mixer, and that each output carries its own mixer line (a swapped motor order is
+named). Spin directions cannot be seen in the data: the report says what the mixer expects. At rest acc z ≈ +1 g."""
 
 from __future__ import annotations
 

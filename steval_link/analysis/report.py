@@ -106,17 +106,10 @@ class TraceComparison:
 
 @dataclass(frozen=True)
 class ReplicaComparison:
-    """The bit-exact replica against the firmware.
-
-    Attributes:
-        rows: binary attitude rows. seeded: rows with a known replica state. bit_exact: seeded rows whose q, thx and thy
-            carry the firmware's bits. seeds: every (re)start ``{"row", "step", "source", "status_row"}``.
-        first_mismatch: ``{"row", "step", "t_fw_s", "t_rel_s"}`` of the first seeded row that differs, or None.
-        settings: the replica's settings. diagnosis: sentences saying why it disagrees.
-        matching_variant: the changed settings that reproduce the firmware, or None; matching_bit_exact: their
-            bit-exact rows over the capture. unseeded_reason: why no row was seeded.
-        divergence: where the firmware's q left the unit sphere (:func:`~.diagnosis.find_divergence`).
-        filter: the ST release the replica ran; filter_from: who named it; variant_bit_exact: steps per variant."""
+    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a known replica state,
+    ``bit_exact`` of them carrying the firmware's q, thx and thy bits; each (re)start in ``seeds``; the first
+    differing row; ``matching_variant``, the changed settings that reproduce the firmware (None: none found);
+    ``divergence``, where the firmware's q left the unit sphere; ``filter``, the ST release the replica ran."""
 
     rows: int
     seeded: int
@@ -171,14 +164,9 @@ class ReplicaComparison:
 
 @dataclass(frozen=True)
 class RateStats:
-    """Timing and link health of a capture.
-
-    Attributes:
-        duration_s: firmware time of the attitude rows (summed between restarts). rate_hz: rows per second.
-        step_rate_hz: AHRS steps per second (161.5 Hz). period_*_ms: Δt_fw between consecutive AHRS steps, ms.
-        seq_gaps, frames_missing: frames lost on the link. tx_dropped: frames the firmware's TX queue could not take
-            (None without status frames). crc_failures: damaged frames.
-        ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them)."""
+    """Timing and link health of a capture: ``duration_s`` of firmware time (summed between restarts), rows and AHRS
+    steps per second, ``period_*_ms`` between consecutive steps, frames lost on the link and in the firmware's TX
+    queue (None without status frames), and the ``ahrs_fusion_ag`` cost the status frames report."""
 
     duration_s: float
     rate_hz: float | None

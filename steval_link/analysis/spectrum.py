@@ -1,13 +1,10 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
-gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
+gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows them.
 
 The rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads, at 161.54 Hz: the spectra end at
-80.77 Hz. A vibration above it is aliased, not lost (:func:`alias_lines`).
-
-Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps; each run is
-cut into Hann windows overlapping by half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's
-``welch(..., scaling="density")`` convention) is averaged over every window. The rate is measured on the firmware's
-clock."""
+80.77 Hz; a vibration above it is aliased (:func:`alias_lines`). numpy only (scipy is an optional extra): runs of
+consecutive steps cut into half-overlapping Hann windows, the one-sided PSD (unit²/Hz, scipy's ``welch`` density
+convention) averaged; the rate measured on the firmware's clock."""
 
 from __future__ import annotations
 
