@@ -355,8 +355,7 @@ def run_check(
     if not report.ok and any(not c.ok and "failed in" in c.detail for c in report.checks):
         report.broad_note = "not scored: the estimator raised in the checks"
         return report
-    companions = [(c, c) for c in COMPANIONS if registry.is_available(c)]
-    names = [(str(sel), sel)] + companions
+    names = [(str(sel), sel)] + [(c, c) for c in COMPANIONS if registry.is_available(c)]
     if captures:
         progress(0.3, "bundled captures")
         report.captures = capture_scores(names)
@@ -375,23 +374,18 @@ def run_check(
 def format_check(report: CheckReport) -> list[str]:
     """The report as plain lines (a table per part)."""
     lines = [f"{report.label}: interface checks"]
-    w = max(len(c.name) for c in report.checks) if report.checks else 5
-    for c in report.checks:
-        lines.append(f"  {'PASS' if c.ok else 'FAIL'}  {c.name.ljust(w)}  {c.detail}")
+    w = max((len(c.name) for c in report.checks), default=5)
+    lines += [f"  {'PASS' if c.ok else 'FAIL'}  {c.name.ljust(w)}  {c.detail}" for c in report.checks]
     if report.captures:
         labels = list(report.captures[0]["vs_firmware_deg"])
         width = [max(9, len(k)) for k in labels]
         w0 = max(len("capture"), *(len(c["capture"]) for c in report.captures))
+        heads = [k.rjust(x) for k, x in zip(labels, width)]
         lines += [
             "",
             "bundled captures: RMS tilt difference in degrees, from the firmware's attitude | from "
             "accelerometer-only tilt",
-            "  ".join(
-                ["capture".ljust(w0), "frames".rjust(7)]
-                + [k.rjust(x) for k, x in zip(labels, width)]
-                + ["|"]
-                + [k.rjust(x) for k, x in zip(labels, width)]
-            ),
+            "  ".join(["capture".ljust(w0), "frames".rjust(7)] + heads + ["|"] + heads),
         ]
         for c in report.captures:
             fw, acc = (
