@@ -472,12 +472,10 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
         (line,) = ax1.plot(r.err_t_s.get(k, r.t_s), e, lw=0.7, label=f"{k} ({_fmt(r.rmse_deg[k])}°{mark})")
         if cov is not None and cov.diverged_at_s is not None:
             ax1.axvline(cov.diverged_at_s, color=line.get_color(), ls="--", lw=0.8)
-    ax1.set_xlabel("time (s)")
-    ax1.set_ylabel("inclination error (deg)")
+    ax1.set(xlabel="time (s)", ylabel="inclination error (deg)", ylim=(0, None))
     ax1.set_title(f"{r.name}: inclination error over time (dashed: where an estimate diverged)")
     ax1.legend(fontsize=8, ncol=3)
     ax1.grid(alpha=0.3)
-    ax1.set_ylim(bottom=0)
     return fig
 
 

@@ -296,8 +296,7 @@ def _difference_bars(ax, ax_legend, report) -> None:
             ax.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
     ax.set_yticks(y, [tr.label for tr in avail], fontsize=8)
     ax.invert_yaxis()
-    ax.set_xlim(0, vmax * 1.25 if vmax > 0 else 1.0)
-    ax.set_xlabel("difference from the firmware [deg]")
+    ax.set(xlim=(0, vmax * 1.25 if vmax > 0 else 1.0), xlabel="difference from the firmware [deg]")
     ax.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
     hb, lb = ax.get_legend_handles_labels()
     ax_legend.legend(hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False,
@@ -401,10 +400,8 @@ def flight_control_figure(tel, *, title: str | None = None):
     ):
         for k, lab in enumerate(labels):
             ax.plot(tf, np.asarray(values, np.float64)[:, k], lw=1.0, label=lab)
-        ax.set_ylabel(unit)
-        ax.set_title(what, fontsize=10, loc="left")
+        _label_panel(ax, unit, what)
         ax.legend(fontsize=7, ncol=len(labels) // 2, loc="upper right")
-        ax.grid(True, alpha=0.3)
         ax.set_xlabel("firmware time since the first frame [s]")
     every = int(np.max(fc.fc_every)) if len(fc) else 0
     src = (getattr(tel, "source", None) or {}).get("path") or "capture"

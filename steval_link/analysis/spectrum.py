@@ -506,9 +506,7 @@ def _psd_panel(ax, sp: Spectra, k: int, marks_hz, found: list[Peak], legend: boo
         left = p.freq_hz > 0.7 * nyq  # near the right edge: the label to the left of the peak
         style = dict(textcoords="offset points", fontsize=9, color="darkorange", ha="right" if left else "left")
         ax.annotate(text, (p.freq_hz, p.psd), xytext=(-4 if left else 4, 2), **style)
-    ax.set_xlim(0, nyq * 1.02)
-    ax.set_title(f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD")
-    ax.set_xlabel("frequency [Hz]")
+    ax.set(xlim=(0, nyq * 1.02), title=f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD", xlabel="frequency [Hz]")
     ax.set_ylabel(f"{UNITS[sensor]}²/Hz")
     ax.grid(True, which="major", alpha=0.3)
     if legend:
@@ -522,10 +520,8 @@ def _spectrogram_panel(fig, ax, sp: Spectra, sensor: str) -> None:
     lo, hi = _levels(z)
     mesh = ax.pcolormesh(sp.window_t_fw_s, sp.freq_hz, z, shading="nearest", cmap="inferno", vmin=lo, vmax=hi)
     fig.colorbar(mesh, ax=ax, label=f"dB re 1 {UNITS[sensor]}²/Hz")
-    ax.set_ylim(0, sp.nyquist_hz)
-    ax.set_title(f"{sensor} spectrogram (x + y + z)")
+    ax.set(ylim=(0, sp.nyquist_hz), title=f"{sensor} spectrogram (x + y + z)", ylabel="frequency [Hz]")
     ax.set_xlabel("firmware time [s since boot]")
-    ax.set_ylabel("frequency [Hz]")
 
 
 def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
@@ -545,10 +541,8 @@ def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
     labels = [f"{e[b]:.0f}–{e[b + 1]:.0f}" for b in occupied]
     step = max(1, len(labels) // 5)
     ax.set_xticks(np.arange(len(occupied))[::step] + 0.5, labels[::step])
-    ax.set_ylim(0, sp.nyquist_hz)
-    ax.set_title("gyro (x + y + z) vs throttle")
+    ax.set(ylim=(0, sp.nyquist_hz), title="gyro (x + y + z) vs throttle", ylabel="frequency [Hz]")
     ax.set_xlabel(f"throttle gTHR (bins with data; motors from {C.MIN_THR})")
-    ax.set_ylabel("frequency [Hz]")
 
 
 def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | None = None, title: str = ""):
