@@ -166,8 +166,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
     fws = [fw for r in results for fw in r.firmware]
     if not fws:
         return []
-    w0 = max(len(fw.trial) for fw in fws)
-    w1 = max(len(fw.label) for fw in fws)
+    w0, w1 = max(len(fw.trial) for fw in fws), max(len(fw.label) for fw in fws)
     out = [
         "firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
         "(emulator counts, interrupts excluded); the bit-exact ST-Mahony replica on the firmware's own inputs"
@@ -181,10 +180,8 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
             else f"replica {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
             + ("" if fw.settings is None else f" with {fw.settings.variant}'s filter")
         )
-        notes = list(fw.notes)
         cov = fw.coverage
-        if not cov.complete:
-            notes.insert(0, cov.sentence())
+        notes = ([] if cov.complete else [cov.sentence()]) + list(fw.notes)
         note = f"  [{'; '.join(notes)}]" if notes else ""
         score = cov.cell(_fmt(fw.rmse_deg))
         out.append(
@@ -262,7 +259,6 @@ def evaluate_capture(
 ) -> TrialResult:
     """Evaluate estimators on a capture's AHRS inputs against its sidecar, or the truth it keeps (chunks T of
     ``steval emulate --broad``); the firmware's own ``q`` of binary frames is scored as ``firmware``."""
-
     p = Path(path)
     src = read_recording(p)  # missing, unreadable, empty: its own sentence
     try:
@@ -279,10 +275,8 @@ def evaluate_capture(
     att = tel.attitude
     if len(att.step) == 0:
         raise UserError(f"{p}: no attitude frames")
-    if kept is not None:  # an emulated BROAD run keeps the truth it was fed (chunks T)
-        step, quat, mov = kept.step, kept.q_wxyz, kept.movement
-    else:
-        step, quat, mov = _load_sidecar(side)
+    # an emulated BROAD run keeps the truth it was fed (chunks T)
+    step, quat, mov = (kept.step, kept.q_wxyz, kept.movement) if kept is not None else _load_sidecar(side)
     q_true, movement, _ = truth_on_steps(step, quat, mov, att.step)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
     dt = np.diff(t)
@@ -290,8 +284,7 @@ def evaluate_capture(
     view = broad.SteValView(
         np.asarray(att.acc_mg, np.float32), np.asarray(att.gyro_mdps, np.float32), t, q_true, movement, rate
     )
-    if specs is None:
-        specs = default_specs(AHRS_RATE_HZ)
+    specs = default_specs(AHRS_RATE_HZ) if specs is None else specs
     res = evaluate_view(view, specs, p.stem, progress, steps=np.asarray(att.step))
     if np.asarray(att.exact).any():  # binary frames carry the firmware's quaternion (text rows: NaN)
         res.score("firmware", att.q_wxyz, view, att.step, float("nan"))
@@ -343,8 +336,8 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
     if fws:
         out["firmware"] = fws
         out["firmware_metric"] = (
-            "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
-            "output (the replica's the same way), over movement steps, degrees"
+            "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own output (the replica's the "
+            "same way), over movement steps, degrees"
         )
     keys = {r.name: r.name.split("_", 1)[0] for r in results}  # "07" of "07_undisturbed_fast_rotation_B"
     sel = [r for r in results if keys[r.name] in MEAN_TRIALS]
