@@ -389,8 +389,7 @@ def format_table(results: Sequence[TrialResult]) -> str:
     w0 = max([len("trial")] + [len(row[0]) for row in rows])
     widths = [max([len(header[j]), 7] + [len(row[j]) for row in rows]) for j in range(1, len(header))]
     lines = ["inclination RMSE (deg) over movement samples"]
-    for row in [header, *rows]:
-        lines.append("  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]))
+    lines += ["  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]) for row in [header, *rows]]
     cov = coverage_lines(results)
     if cov:
         lines += ["", "incomplete scores (no mean, not ranked):"] + [f"  {c}" for c in cov]

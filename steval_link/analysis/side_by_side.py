@@ -121,15 +121,10 @@ def labels_by_difference(flights: Sequence) -> list[str]:
     for i, f in enumerate(flights):
         if f.settings and f.settings.get("changes"):
             labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
-    names = [f.path.name for f in flights]
-    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
-    labels = [
-        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
-        for i in range(n)
-    ]
-    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
-    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
-    return labels
+    clash = [not label or labels.count(label) > 1 for label in labels]  # a clash or no label: the file's name
+    labels = [(f"{lb} ({f.path.name})" if lb else f.path.name) if c else lb for lb, c, f in zip(labels, clash, flights)]
+    # the same file twice: its position tells them apart
+    return [f"{label} #{i + 1}" if labels.count(label) > 1 else label for i, label in enumerate(labels)]
 
 
 @dataclass
