@@ -14,6 +14,7 @@ written with 9 significant digits; NaN is ``null``."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import re
@@ -282,9 +283,7 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
     path); ``metadata``: name → JSON-able dict, stored as MCAP metadata records (values as JSON text). Returns the
     message count per topic."""
     records = require_mcap()
-    own = isinstance(out, (str, Path))
-    stream = open(out, "wb") if own else out
-    try:
+    with open(out, "wb") if isinstance(out, (str, Path)) else contextlib.nullcontext(out) as stream:
         w = McapWriter(stream, records)
         present = {"/status": len(tel.status), "/flight_control": len(tel.fc)}
         channel = {
@@ -308,9 +307,6 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
         for name, data in (metadata or {}).items():
             w.metadata(name, {str(k): json.dumps(v) for k, v in data.items()})
         w.finish()
-    finally:
-        if own:
-            stream.close()
     return {topic: w.counts[c] for topic, c in channel.items()}
 
 
