@@ -268,8 +268,7 @@ def _window_rows(nperseg: int | None, longest: int, decimation: int, notes: list
 def _windows(values, t, thr, runs, rate: float, nperseg: int, hop: int):
     """Every window of every run: (freq_hz, PSD per window, centre time per window, mean throttle per window)."""
     specs, centres, thr_w = [], [], []
-    freq = np.fft.rfftfreq(nperseg, 1.0 / rate)
-    for a, b in runs:
+    for a, b in runs:  # at least one: compute_spectra checked it
         freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
         specs.append(psd)
         centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
@@ -310,12 +309,10 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
     median PSD there, each at least 4 bins from a stronger one (a Hann window's main lobe is ±2 bins wide)."""
     f = np.asarray(freq_hz, dtype=np.float64)
     p = np.asarray(psd, dtype=np.float64)
-    if f.size < 3:
+    band = f >= min_hz
+    if f.size < 3 or not band.any():
         return []
     df = f[1] - f[0]
-    band = f >= min_hz
-    if not band.any():
-        return []
     floor = float(np.median(p[band]))
     k = np.arange(1, len(p) - 1)
     is_max = (p[k] > p[k - 1]) & (p[k] >= p[k + 1]) & band[k]
@@ -327,10 +324,8 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
     out: list[Peak] = []
     taken: list[int] = []
     for i in cand:
-        if len(out) >= count:
-            break
         ratio = p[i] / floor if floor > 0 else np.inf
-        if ratio < 10 ** (min_db / 10):
+        if len(out) >= count or ratio < 10 ** (min_db / 10):
             break
         if any(abs(int(i) - j) < 4 for j in taken):
             continue
