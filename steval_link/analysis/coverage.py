@@ -75,8 +75,7 @@ def _at(t_s: float | None) -> str:
 
 
 def coverage_of(estimate_ok, scored, steps=None, t_s=None) -> Coverage:
-    """The coverage of one estimate: ``estimate_ok`` (N,) its finite rows, ``scored`` (N,) the rows that count,
-    ``steps`` each row's step (default: its index), ``t_s`` each row's time, s."""
+    """The coverage of one estimate: its finite rows among the ``scored`` ones (``steps`` default: row index)."""
     ok = np.asarray(estimate_ok, bool).reshape(-1)
     sc = np.asarray(scored, bool).reshape(-1)
     n = ok.shape[0]

@@ -511,8 +511,7 @@ def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
 
 
 def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
-    """The ST release whose filter reproduces the binary rows (``variant`` forces one, named by ``source``),
-    its bit-exact steps and sentence; None without binary rows. No settings are searched."""
+    """The ST release whose filter reproduces the binary rows (``variant`` forces one), or None without binary rows."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None
@@ -537,8 +536,7 @@ def recognise_release(tel, *, variant: str | None = None, source: str = "variant
 
 
 def capture_variant_hint(tel) -> tuple[str, str] | None:
-    """The release an emulated capture's header names (``extra.filter``: from the firmware ELF's code or the
-    session's ``--variant``), as (variant, who named it); None without one."""
+    """(variant, who named it) from an emulated capture's header (``extra.filter``), or None."""
     extra = ((getattr(tel, "source", None) or {}).get("header") or {}).get("extra") or {}
     f = extra.get("filter")
     if not isinstance(f, dict) or f.get("variant") not in VARIANTS:

@@ -135,8 +135,7 @@ def _last_deg(est) -> tuple[float, float]:
 
 
 def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
-    """Every interface check of the estimator ``name`` names: (checks, steps/s, the first failure's trimmed
-    traceback or "")."""
+    """Every interface check of estimator ``name``: (checks, steps/s, the first failure's trimmed traceback or "")."""
     rate = [math.nan]
 
     def speed():
@@ -327,8 +326,7 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
 
 
 def broad_scores(reference: str, paths: list[Path], progress=None) -> list:
-    """Inclination RMSE against ground truth on each BROAD trial (the STEVAL pipeline, 161.5 Hz): the estimator
-    ``reference`` names next to :data:`BROAD_COMPANIONS` (those installed)."""
+    """Inclination RMSE on each BROAD trial (STEVAL pipeline) of ``reference`` and :data:`BROAD_COMPANIONS`."""
     only = [reference] + [c for c in BROAD_COMPANIONS if c != "vqf" or registry.is_available("vqf")]
     results = []
     for p in paths:
@@ -341,8 +339,7 @@ def broad_scores(reference: str, paths: list[Path], progress=None) -> list:
 def run_check(
     reference: str, *, broad_paths: list[Path] | None = None, captures: bool = True, progress=None
 ) -> CheckReport:
-    """The whole check of the estimator ``reference`` names (see the module doc). ``broad_paths``: trials to
-    score on (None or empty: none). ``progress(fraction, stage)`` is told where it is."""
+    """The whole check of the estimator ``reference`` names (see the module doc), scored on ``broad_paths``."""
     progress = progress or (lambda f, s: None)
     sel = registry.resolve(reference)
     try:

@@ -297,9 +297,8 @@ def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
 
 
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
-    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials and over BROAD 02/07/15/24;
-    an incomplete estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default:
-    4 decimals)."""
+    """JSON-ready report: per-trial RMSE, coverage and speed, the means (all trials, BROAD 02/07/15/24); an incomplete
+    estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default: 4 decimals)."""
     rnd = number or rounded
     labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)

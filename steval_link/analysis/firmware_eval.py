@@ -164,8 +164,7 @@ class _Globals:
 
 
 def _globals_replica(inp: np.ndarray, out: np.ndarray, has_q: bool, first: str | None):
-    """The replica on the inputs read by symbol, each release's filter tried (``first`` first, kept on a tie):
-    (settings, thx, thy, bit-exact per step) of the one bit-exact on the most steps."""
+    """(settings, thx, thy, bit-exact per step) of the release bit-exact on the most steps (``first`` wins a tie)."""
     best = None
     for v in [first] + [v for v in st_mahony.VARIANTS if v != first] if first else list(st_mahony.VARIANTS):
         settings = MahonySettings(variant=v)
@@ -191,10 +190,8 @@ def run_firmware(
     progress: Callable[[float], None] | None = None,
     variant: str | None = None,
 ) -> FirmwareResult:
-    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output.
-
-    The replica runs the filter of ``variant``, else of the release the ELF's code or the data shows. UserError: no
-    attitude frames and no ``euler_ahrs`` symbol, or no AHRS step."""
+    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output; the
+    replica runs the filter of ``variant``, else of the release the ELF's code or the data shows."""
     t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)

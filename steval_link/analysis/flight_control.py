@@ -60,8 +60,7 @@ def motor_thr(thr) -> np.ndarray:
 
 
 def mixer_pwm(thr, inner_s2) -> np.ndarray:
-    """(N, 4) float32: the motor PWM the mixer computes from gTHR (N,) and the inner outputs (N, 3), in the
-    firmware's order of operations (left to right, float32)."""
+    """(N, 4) float32 motor PWM from gTHR (N,) and the inner outputs (N, 3), in the firmware's order of operations."""
     s2 = np.asarray(inner_s2, dtype=np.float32).reshape(-1, 3)
     mt = motor_thr(thr).reshape(-1)
     out = np.empty((len(s2), 4), np.float32)
@@ -83,8 +82,7 @@ def expected_motor_pwm(thr, inner_s2, armed) -> np.ndarray:
 
 
 def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
-    """(N, 3) float32 outer-loop P terms ``kp1·(target − angle)`` per axis (x pitch, y roll, z yaw);
-    ``angles_rad`` (N, 3) = thx, thy, thz of the step."""
+    """(N, 3) float32 outer-loop P terms ``kp1·(target − angle)``; angles (N, 3) thx pitch, thy roll, thz yaw."""
     rc = np.asarray(euler_rc_rad, dtype=np.float32).reshape(-1, 3)
     ang = np.asarray(angles_rad, dtype=np.float32).reshape(-1, 3)
     return np.asarray(C.OUTER_KP, dtype=np.float32) * (rc - ang)

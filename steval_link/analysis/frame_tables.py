@@ -51,8 +51,7 @@ def status_table(tel) -> dict[str, np.ndarray]:
 
 
 def fc_table(tel) -> dict[str, np.ndarray]:
-    """One row per flight-control frame, the CSV's flight-control column names (targets, sticks, outer and inner
-    loop outputs, motors, battery, flags)."""
+    """One row per flight-control frame, with the CSV's flight-control column names."""
     fc = tel.fc
     cols: dict[str, np.ndarray] = {"step": fc.step, "t_fw_s": fc.t_fw_s, "t_host_s": fc.t_host_s}
     n = len(fc)
@@ -96,9 +95,7 @@ def record_table(rows: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
-    """One column table per frame type the capture holds (``attitude`` always; ``status``, ``fc``, ``ack``,
-    ``command`` when present); ``text_records`` the records of text telemetry; ``text`` lines as ``t_host_s`` and
-    ``text``."""
+    """One column table per frame type the capture holds (``attitude`` always), text records and text lines."""
     out = {"attitude": attitude_table(tel)}
     if len(tel.status):
         out["status"] = status_table(tel)
@@ -130,14 +127,12 @@ def _plain(v: Any) -> Any:
 
 
 def settings_of(tel) -> dict[str, Any]:
-    """The filter settings the status frames report (last frame; ``differs_from_defaults``, ``changes``,
-    ``change_list``), or ``{"from": "none"}`` without status frames."""
+    """The filter settings the status frames report, or ``{"from": "none"}`` without status frames."""
     return _plain(filter_settings_report(tel) or {"from": "none"})
 
 
 def header_of(tel) -> dict[str, Any]:
-    """The capture header (``port``, ``baud``, ``start_time_utc``, ``tool_version``, ``extra``) and the file's
-    ``path`` and ``kind``."""
+    """The capture header (``port``, ``baud``, ``extra``, ...) and the file's ``path`` and ``kind``."""
     src = tel.source or {}
     return _plain(
         dict(src.get("header") or {}) | {"path": str(src.get("path") or ""), "kind": str(src.get("kind") or "")}

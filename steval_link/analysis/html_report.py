@@ -41,8 +41,7 @@ class Table:
 
 @dataclass
 class Section:
-    """One heading of the report and what stands under it, in this order: sentences, monospace lines, tables,
-    figures."""
+    """One heading and what stands under it, in order: sentences, monospace lines, tables, figures."""
 
     heading: str
     sentences: list[str] = field(default_factory=list)
@@ -194,8 +193,7 @@ def capture_sections(
     warnings: list[str] = (),
     spectrum_note: str | None = None,
 ) -> list[Section]:
-    """The sections of one capture: summary and settings, attitude, the replica's verdict, the estimators, the
-    step cost, the spectrum (else ``spectrum_note``) and the flight control."""
+    """The sections of one capture, from its summary to its flight control (the spectrum else ``spectrum_note``)."""
     from steval_link.analysis.plots import (  # matplotlib (checked by the caller)
         comparison_figure,
         differences_figure,

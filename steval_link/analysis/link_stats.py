@@ -27,9 +27,7 @@ def relative_time_s(step, t_fw_s) -> np.ndarray:
 
 
 def cycles_are_emulated(tel) -> bool:
-    """Whether the status frames' ``cyc_*`` were counted by an emulator (``steval emulate``, ``steval synth``: the
-    capture header says ``extra.emulated``), where CYCCNT advances once per instruction: instruction counts, not
-    Cortex-M4 cycles."""
+    """Whether an emulator counted the status frames' ``cyc_*`` (``extra.emulated``): instructions, not cycles."""
     header = (getattr(tel, "source", None) or {}).get("header") or {}
     return bool((header.get("extra") or {}).get("emulated"))
 

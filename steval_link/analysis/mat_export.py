@@ -61,8 +61,7 @@ def _value(v: Any) -> Any:
 def write_mat(
     tables: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], header: dict[str, Any], out: BinaryIO | str
 ) -> None:
-    """Write ``tables`` (frame type → column → array, e.g. :func:`steval_link.analysis.frame_tables.frame_tables`),
-    ``settings`` and ``header`` as one MATLAB (v5) file ``out`` (a path or a binary file)."""
+    """Write ``tables`` (frame type → column → array), ``settings`` and ``header`` as one MATLAB (v5) file ``out``."""
     savemat = require_scipy()
     data = {mat_name(kind): {mat_name(c): _value(np.asarray(v)) for c, v in t.items()} for kind, t in tables.items()}
     data |= {"settings": _value(settings), "header": _value(header)}

@@ -279,9 +279,8 @@ def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:
-    """Write ``tel`` (a :class:`~steval_link.link.telemetry.Telemetry`) as MCAP to ``out`` (a binary file or a
-    path); ``metadata``: name → JSON-able dict, stored as MCAP metadata records (values as JSON text). Returns the
-    message count per topic."""
+    """Write ``tel`` as MCAP to ``out`` (a binary file or a path), ``metadata`` (name → dict) as metadata records
+    (values as JSON text); returns the message count per topic."""
     records = require_mcap()
     with open(out, "wb") if isinstance(out, (str, Path)) else contextlib.nullcontext(out) as stream:
         w = McapWriter(stream, records)
