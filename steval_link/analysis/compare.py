@@ -172,7 +172,7 @@ def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
 
 
 def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] | None:
-    """Inclination RMSE (deg, movement steps) of the firmware, replica and estimators against the kept truth, or None."""
+    """Inclination RMSE (deg, movement steps) of the firmware, replica and estimators against kept truth, or None."""
     src = tel.source or {}
     if src.get("kind") != "stv" or not src.get("path"):
         return None
