@@ -382,8 +382,7 @@ def coverage_lines(results: Sequence[TrialResult]) -> list[str]:
 
 
 def format_table(results: Sequence[TrialResult]) -> str:
-    """A plain-text table: one row per trial, one column per estimator (inclination RMSE, °, marked with its
-    coverage when incomplete), mean rows, then what each incomplete score misses and the firmware lines."""
+    """A plain-text table of :func:`table_rows`, then what each incomplete score misses and the firmware lines."""
     header, rows = table_rows(results)
     w0 = max([len("trial")] + [len(row[0]) for row in rows])
     widths = [max([len(header[j]), 7] + [len(row[j]) for row in rows]) for j in range(1, len(header))]

@@ -372,8 +372,7 @@ class McapWriter:
         return rec.id
 
     def add_block(self, channels: np.ndarray, t_ns: np.ndarray, seq: np.ndarray, datas: list[bytes]) -> None:
-        """Messages ``datas`` (one per entry of ``channels``, ``t_ns`` (log and publish time), ``seq``) as one chunk
-        of their own."""
+        """Messages ``datas`` (one per entry of ``channels``, ``t_ns``, ``seq``) as one chunk of their own."""
         m = len(datas)
         if m == 0:
             return

@@ -107,9 +107,8 @@ def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
 
 
 def comparison_figure(tel, report, *, title: str | None = None):
-    """Pitch (thx, about x) and roll (thy, about y) over firmware time: the firmware, the replica, the
-    estimators, accel-only tilt, flight-throttle spans shaded; below, firmware − replica with the throttle; right, RMS
-    and max |Δ| against the firmware per estimator."""
+    """Pitch (thx, about x) and roll (thy, about y) of the firmware, replica and estimators over firmware time; below,
+    firmware − replica with the throttle; right, RMS and max |Δ| against the firmware per estimator."""
     plt = require_matplotlib()
     from matplotlib.gridspec import GridSpec
 
@@ -328,8 +327,7 @@ def _summary_lines(report, fs: dict) -> list[str]:
 
 
 def differences_figure(tel, report, *, title: str | None = None):
-    """Each estimator minus the firmware over time (degrees, its RMS in its label), pitch (thx, about x) above
-    roll (thy, about y); accel-only tilt thin and grey."""
+    """Each estimator minus the firmware over time, degrees: pitch (thx, about x) above roll (thy, about y)."""
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
@@ -359,9 +357,8 @@ def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
 
 
 def flight_control_figure(tel, *, title: str | None = None):
-    """The flight-control frames as Betaflight's Blackbox shows a flight: per axis the remote's target against
-    the firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1 with its P and I terms, the
-    motors and the inner loop's s2."""
+    """The flight-control frames as Betaflight's Blackbox shows them: per axis the remote's target against the
+    firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1, P and I, the motors and s2."""
     plt = require_matplotlib()
     a, fc = tel.attitude, tel.fc
     t0 = float(a.t_fw_s[0]) if len(a) else 0.0
@@ -452,8 +449,7 @@ def _run_name(res) -> str:
 
 
 def simulation_figure(result, *, title: str | None = None, compare=()):
-    """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    ``steval simulate`` run, the inputs in the title; ``compare``: ``(label, result)`` of other runs, overlaid."""
+    """eax (pitch, about x), eay (roll), eaz (yaw) in degrees over a ``simulate`` run; ``compare``: runs overlaid."""
     plt = require_matplotlib()
     res = result
     k = np.asarray(res.step, dtype=np.int64)

@@ -87,9 +87,8 @@ class AngleStats:
 
 @dataclass(frozen=True)
 class TraceComparison:
-    """One estimator's angles against the firmware's: ``pitch`` (thx, about x) and ``roll`` (thy, about y)
-    differences in degrees; ``available`` False when it could not run (``note`` says why); ``n_invalid`` rows it did not
-    cover (excluded)."""
+    """One estimator's ``pitch`` (thx, about x) and ``roll`` (thy, about y) differences from the firmware, degrees;
+    ``available`` False when it could not run (``note`` says why)."""
 
     name: str
     label: str
@@ -199,8 +198,7 @@ class RateStats:
 
 @dataclass
 class ComparisonReport:
-    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json``); the arrays
-    behind it (``t_rel_s``, the replica replay, the estimates) are kept for the plots."""
+    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json``), arrays for plots."""
 
     source: dict[str, Any]
     rows: int
@@ -404,9 +402,8 @@ def _truth_lines(truth: dict | None, w: int) -> list[str]:
 
 
 def estimator_summary(name: str, est, tel) -> dict[str, Any]:
-    """What one host estimator did over a capture (``replay -e``, ``emulate -e``): its valid rows, the first step
-    it was invalid (None: never), and its RMS difference from the firmware's pitch (thx) and roll (thy), degrees,
-    over the rows where both are finite."""
+    """One host estimator over a capture: its valid rows, the first invalid step, and its RMS difference (deg) from the
+    firmware's pitch (thx) and roll (thy) where both are finite."""
     a = tel.attitude
     valid = np.asarray(est.valid, bool) & np.isfinite(est.thx_rad) & np.isfinite(est.thy_rad)
     bad = np.flatnonzero(~valid)

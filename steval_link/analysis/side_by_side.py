@@ -165,8 +165,7 @@ _FLIGHT_KEYS = "label path kind angles settings facts rows duration_s frames_los
 
 @dataclass
 class SideBySide:
-    """Flights on one time axis (``flights[0]`` is the reference of the differences), how they were aligned, the
-    differences of each later flight from the first, and the mismatch notes. ``as_dict()`` is ``--json``."""
+    """Flights on one time axis, each later one's differences from ``flights[0]`` and notes; ``as_dict()`` is --json."""
 
     flights: list[Flight]
     align: str
@@ -275,8 +274,7 @@ def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
 
 
 def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()) -> Flight:
-    """A BLE capture's telemetry (the sender's samples on one grid, ``tel.link`` its facts) and the ST-Mahony
-    replica's estimate over its rows (the stock firmware sends no angles); None: the rows' own (euler layout)."""
+    """A BLE capture's telemetry and the ST-Mahony replica's estimate over its rows (None: the rows' own angles)."""
     a = tel.attitude
     t = a.t_fw_s - a.t_fw_s[0] if len(a) else a.t_fw_s
     lost = tel.link.cadence.dropped if tel.link.cadence is not None else 0
@@ -418,8 +416,8 @@ def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, n
 
 
 def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None) -> SideBySide:
-    """Put ``flights`` on one time axis, label them (``labels`` first, the rest derived), measure each against
-    its accel-only tilt and each later one against the first. ValueError: an unknown ``align`` or an empty flight."""
+    """Put ``flights`` on one time axis, label them (``labels`` first), measure each against its accel-only tilt
+    and each later one against the first."""
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)

@@ -18,8 +18,7 @@ EMULATED_INSTRUCTIONS = "emulated instructions"
 
 @dataclass(frozen=True)
 class StepCost:
-    """One AHRS step's cost over a capture: ``median``, ``mean``, ``max`` per step in ``unit``, over ``steps``;
-    ``cpu_hz`` the core clock (None: unknown)."""
+    """One AHRS step's cost over ``steps`` steps, in ``unit``; ``cpu_hz`` the core clock (None: unknown)."""
 
     median: float
     mean: float

@@ -31,8 +31,7 @@ _FLAG_NAMES = {
 
 
 def values_bad_report(tel) -> dict[str, Any] | None:
-    """The rows kept with NaN or out-of-range values (None: none): ``frames``, ``status_frames``, the first
-    (``first_row``, ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (acc/gyro bad too) and ``text``, its sentence."""
+    """The rows kept with NaN or out-of-range values, the first of them and a sentence (None: none)."""
     a = tel.attitude
     bad = np.asarray(getattr(a, "values_bad", np.zeros(len(a), bool)), bool)
     sbad = np.asarray(getattr(tel.status, "values_bad", np.zeros(len(tel.status), bool)), bool)
@@ -69,9 +68,8 @@ def values_bad_report(tel) -> dict[str, Any] | None:
 
 
 def q_norm_report(tel) -> dict[str, Any] | None:
-    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite; the release keeps
-    ``|q|`` ≈ 0.9983), None when there is none: ``frames``, the first (``first_step``, ``first_t_fw_s``,
-    ``q_norm``) and ``text``."""
+    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite), the first of them and a
+    sentence; None when there is none."""
     a = tel.attitude
     ex = np.asarray(a.exact, bool)
     off = ex & q_off_sphere(a.q_wxyz)
@@ -96,8 +94,7 @@ def q_norm_report(tel) -> dict[str, Any] | None:
 
 
 def text_telemetry_report(tel) -> dict[str, Any] | None:
-    """The records of text telemetry (None: none): their count, series names and units, other and dropped
-    lines, the time source, notes, and how series became the attitude rows."""
+    """The records of text telemetry: count, series, units, other lines, time source and notes (None: none)."""
     ts = getattr(tel, "text_series", None)
     if ts is None or not len(ts):
         return None
