@@ -40,8 +40,7 @@ from steval_link.link.plausibility import held_back_sentence
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:
-    thx = np.asarray(thx, dtype=np.float64)
-    thy = np.asarray(thy, dtype=np.float64)
+    thx, thy = np.asarray(thx, dtype=np.float64), np.asarray(thy, dtype=np.float64)
     valid = np.asarray(valid, bool) & np.isfinite(thx) & np.isfinite(thy)
     dx = np.where(valid, angle_diff_rad(thx, fw_thx), np.nan)
     dy = np.where(valid, angle_diff_rad(thy, fw_thy), np.nan)
@@ -78,8 +77,7 @@ def compare_capture(
     if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
         notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
-    nan_x = int(np.count_nonzero(~np.isfinite(fw[0])))
-    nan_y = int(np.count_nonzero(~np.isfinite(fw[1])))
+    nan_x, nan_y = (int(np.count_nonzero(~np.isfinite(angle))) for angle in fw)
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
         why = (

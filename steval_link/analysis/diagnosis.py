@@ -376,10 +376,8 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         replica_q = [json_number(x) for x in rep.q_wxyz[k]]
         seeded_after = np.flatnonzero(rep.seeded[k:]) + k
         p_off = q_off_sphere(rep.q_wxyz[seeded_after])
-        if p_off.any():
-            replica_state, replica_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
-        else:
-            replica_state = "finite"
+        replica_state = "diverged" if p_off.any() else "finite"
+        replica_div = int(a.step[seeded_after[int(np.argmax(p_off))]]) if p_off.any() else None
     nonfinite = not np.isfinite(q).all()
     what = "went non-finite" if nonfinite else "left the unit sphere"
     how = "" if nonfinite else f", |q| = {q_norm(q):.6g}"

@@ -11,7 +11,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
-from steval_link.analysis.report import angle_diff_rad, on_rows, true_runs
+from steval_link.analysis.report import angle_diff_rad, on_rows, setting_text, true_runs
 from steval_link.errors import ParamError, UserError
 
 INSTALL_HINT = 'pip install "steval-link[plot]"'
@@ -419,12 +419,8 @@ def _variant_text(variant: dict) -> str:
             out.append(f"kp_ground={v[0]:g}, kp_flight={v[1]:g}")
         elif k == "defaults":
             out.append("the firmware defaults")
-        elif isinstance(v, bool):
-            out.append(f"{k}={'on' if v else 'off'}")
-        elif isinstance(v, float):
-            out.append(f"{k}={v:.7g}")
-        else:
-            out.append(f"{k}={v}")
+        else:  # on/off, a release's name, a float to 7 digits
+            out.append(f"{k}={v:.7g}" if isinstance(v, float) else f"{k}={setting_text(v)}")
     return ", ".join(out)
 
 
