@@ -13,7 +13,7 @@ import numpy as np
 
 from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.analysis.diagnosis import compare_replica, filter_settings_report
-from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s
+from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s, step_cost
 from steval_link.analysis.report import (
     REPLICA_TRACE,
     TRACE_LABELS,
@@ -26,7 +26,6 @@ from steval_link.analysis.report import (
     on_rows,
     truth_on_steps,
 )
-from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
 from steval_link.emulation import broad
 from steval_link.emulation.broad import score_euler

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from steval_link.analysis.diagnosis import q_norm, recognise_release
+from steval_link.analysis.link_stats import step_cost
 from steval_link.analysis.report import fmt_number, json_number
-from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
 from steval_link.link.ble_payloads import TICK_S, TICK_WRAP
 from steval_link.link.commands import command_log
