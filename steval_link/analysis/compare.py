@@ -11,7 +11,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.analysis.diagnosis import compare_replica, filter_settings_report
 from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s, step_cost
 from steval_link.analysis.report import (
@@ -19,8 +18,10 @@ from steval_link.analysis.report import (
     TRACE_LABELS,
     AngleStats,
     ComparisonReport,
+    Coverage,
     TraceComparison,
     angle_diff_rad,
+    coverage_of,
     format_report,  # noqa: F401 (the CLI imports it from here)
     json_number,
     on_rows,

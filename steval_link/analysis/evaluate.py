@@ -16,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.analysis.coverage import Coverage, coverage_of, percent
 from steval_link.analysis.firmware_eval import FirmwareResult, cut_trial, firmware_labels, run_firmware
 from steval_link.analysis.plots import require_matplotlib, save_figure
-from steval_link.analysis.report import json_number, truth_on_steps
+from steval_link.analysis.report import Coverage, coverage_of, json_number, percent, truth_on_steps
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
 from steval_link.emulation.elf import Elf
@@ -101,7 +100,7 @@ def default_specs(
 class TrialResult:
     """The outcome of one trial (or capture): its name, step rate (Hz), step times ``t_s`` (M,) and ``movement``
     (M,) bool; per label the inclination RMSE (deg), error (M,) rad, speed (steps/s), ``err_t_s`` (a firmware's own step
-    times, s) and :class:`~steval_link.analysis.coverage.Coverage`; the firmware runs (``--firmware``)."""
+    times, s) and :class:`~steval_link.analysis.report.Coverage`; the firmware runs (``--firmware``)."""
 
     name: str
     rate_hz: float

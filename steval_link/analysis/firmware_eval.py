@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.analysis.coverage import Coverage, coverage_of
-from steval_link.analysis.report import on_rows
+from steval_link.analysis.report import Coverage, coverage_of, on_rows
 from steval_link.emulation.broad import BroadTrial, StepTruth, TruthRows, score_euler
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.symbol_attitude import elf_filter_variant
