@@ -63,10 +63,16 @@ def setting_f32(x) -> float:
     return float(str(np.float32(x)))
 
 
+def _setting_values(s: MahonySettings) -> dict[str, Any]:
+    """A filter's settings in label order, the float32 ones as their shortest decimals."""
+    keys = ("ki", "correction", "kp_ground", "kp_flight", "min_thr", "dt_s", "variant")
+    return {
+        k: setting_f32(getattr(s, k)) if k in ("ki", "kp_ground", "kp_flight", "dt_s") else getattr(s, k) for k in keys
+    }
+
+
 def _defaults() -> dict[str, Any]:
-    d = MahonySettings()
-    floats = {k: setting_f32(getattr(d, k)) for k in ("ki", "kp_ground", "kp_flight", "dt_s")}
-    return floats | {"correction": True, "min_thr": int(d.min_thr), "variant": d.variant} | _NO_FLAGS
+    return _setting_values(MahonySettings()) | _NO_FLAGS
 
 
 def _word(key: str, value) -> str:
@@ -212,13 +218,7 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
     changes = int((filter_settings_report(tel) or {}).get("changes") or 0)
     return {
         "from": "status frames",
-        "ki": setting_f32(first.ki),
-        "correction": bool(first.correction),
-        "kp_ground": setting_f32(first.kp_ground),
-        "kp_flight": setting_f32(first.kp_flight),
-        "min_thr": int(first.min_thr),
-        "dt_s": setting_f32(first.dt_s),
-        "variant": first.variant,
+        **_setting_values(first),
         "text_mode": bool(flags & P.FLAG_TEXT_MODE),
         "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
         "flags": flags,
