@@ -134,15 +134,10 @@ def _estimator_table(report: ComparisonReport) -> Table:
             ["firmware (drone)", str(report.rows), "0", "0", "0", "0", fmt_number(truth.get("firmware"), ".3f"), ""]
         )
     for t in report.traces:
-        if not t.available:
-            row = [t.label, "—", "", "", "", ""] + ([""] if truth else []) + [t.note]
-        else:
-            row = [t.label, str(min(t.pitch.n, t.roll.n))]
-            row += [fmt_number(v) for v in (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)]
-            if truth:
-                row.append(fmt_number(truth.get(t.name), ".3f"))
-            row.append(t.note)
-        rows.append(row)
+        stats = (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)
+        cells = [str(min(t.pitch.n, t.roll.n)), *map(fmt_number, stats)] if t.available else ["—", "", "", "", ""]
+        vs_truth = [fmt_number(truth.get(t.name), ".3f") if t.available else ""] if truth else []
+        rows.append([t.label, *cells, *vs_truth, t.note])
     cap = "angles against the firmware, degrees (Δ = estimator − firmware; pitch = thx about x, roll = thy about y)"
     if truth:
         cap += (

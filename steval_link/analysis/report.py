@@ -391,12 +391,10 @@ def _filter_lines(fs: dict | None) -> list[str]:
         return ["filter settings: no status frames (the replica assumes the firmware defaults)"]
     if fs["from"] != "status frames":
         return [f"filter (text-mode status lines): ki {fmt_number(fs['ki'], 'g')}, flags {fs['flags']}"]
-    diff = fs["differs_from_defaults"]
-    tail = "firmware defaults"
-    if diff:
-        tail = "differs from defaults: " + ", ".join(
-            f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in diff.items()
-        )
+    changed = [
+        f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in fs["differs_from_defaults"].items()
+    ]
+    tail = "differs from defaults: " + ", ".join(changed) if changed else "firmware defaults"
     lines = [
         f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
         f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "

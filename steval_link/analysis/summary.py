@@ -71,8 +71,7 @@ def q_norm_report(tel) -> dict[str, Any] | None:
     """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite), the first of them and a
     sentence; None when there is none."""
     a = tel.attitude
-    ex = np.asarray(a.exact, bool)
-    off = ex & q_off_sphere(a.q_wxyz)
+    off = np.asarray(a.exact, bool) & q_off_sphere(a.q_wxyz)
     if not off.any():
         return None
     i = int(np.argmax(off))
