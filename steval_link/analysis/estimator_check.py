@@ -78,9 +78,6 @@ class CheckReport:
         return d
 
 
-# ---- inputs --------------------------------------------------------------------------------------------------------
-
-
 def _gravity_mg(thx_rad, thy_rad) -> np.ndarray:
     """(N, 3) accelerometer at rest for attitudes (thx, thy), mg: R(thx, thy)ᵀ·(0, 0, 1 g)."""
     thx = np.asarray(thx_rad, dtype=np.float64)
@@ -125,9 +122,6 @@ def _invalid_input(seed: int):
     acc = np.concatenate([rest_a, nan_a, fall[0], sat[0], after_a])
     gyro = np.concatenate([rest_g, nan_g, fall[1], sat[1], after_g])
     return acc, gyro
-
-
-# ---- the checks ----------------------------------------------------------------------------------------------------
 
 
 def _last_deg(est) -> tuple[float, float]:
@@ -271,9 +265,6 @@ def _check_speed(name, demo_inputs):
 def _demo_inputs():
     a = telemetry_of_recording(read_recording(demo_capture_path())).attitude
     return a.acc_mg, a.gyro_mdps, a.thr
-
-
-# ---- scores --------------------------------------------------------------------------------------------------------
 
 
 #: the recordings the repository ships (``recordings/make_recordings.sh`` makes them); a user's own captures in the

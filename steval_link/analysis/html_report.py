@@ -70,9 +70,6 @@ def figure_png(fig, *, dpi: int = 100) -> bytes:
     return buf.getvalue()
 
 
-# ---- one capture -------------------------------------------------------------------------------------------------
-
-
 def _settings_table(report: ComparisonReport) -> Table | None:
     """The filter settings the status frames report, each with the 170120 default when it differs."""
     fs = report.filter_settings
@@ -243,8 +240,6 @@ def side_by_side_section(result) -> Section:
     figure = Figure("side-by-side", what, figure_png(side_by_side_figure(result)))
     return Section("the captures side by side", lines=format_side_by_side(result), figures=[figure])
 
-
-# ---- writers -----------------------------------------------------------------------------------------------------
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;max-width:1320px;margin:1.5em auto;

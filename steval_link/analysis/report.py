@@ -64,9 +64,6 @@ def json_number(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-# ---- coverage of a score ----------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Coverage:
     """How much of the scored rows (movement with finite truth) one estimate covered (finite): ``diverged_at_step``

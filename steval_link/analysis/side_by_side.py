@@ -40,8 +40,6 @@ DURATION_TOLERANCE_S = 1.0
 MAX_LAG_FRACTION = 0.5
 
 
-# -- labels: what differs between the flights (settings, else header facts, else file names) ---------------
-
 #: Settings in label order, with their names in a label (a label names a setting that differs from its default).
 _SETTING_WORDS = {
     "ki": "ki",
@@ -195,9 +193,6 @@ class SideBySide:
         }
 
 
-# -- one flight ------------------------------------------------------------------------------------------------
-
-
 def _settings_of_status(tel) -> dict[str, Any] | None:
     s = tel.status
     if not len(s):
@@ -322,9 +317,6 @@ def _still_figures(f: Flight) -> dict[str, Any]:
     return out
 
 
-# -- alignment -------------------------------------------------------------------------------------------------
-
-
 def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
     """The gyro (deg/s, zero mean per axis) resampled on a uniform grid from the flight's first frame."""
     g = np.asarray(gyro_mdps, np.float64) / 1000.0
@@ -358,9 +350,6 @@ def motion_lag_s(
     return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
 
 
-# -- mismatches ------------------------------------------------------------------------------------------------
-
-
 def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     notes: list[str] = []
     lo, hi = min(f.duration_s for f in flights), max(f.duration_s for f in flights)
@@ -386,9 +375,6 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     if text and len(text) < len(flights):
         notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary frames.")
     return notes
-
-
-# -- all together ----------------------------------------------------------------------------------------------
 
 
 def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
@@ -450,9 +436,6 @@ def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequ
     )
 
 
-# -- text ------------------------------------------------------------------------------------------------------
-
-
 def _settings_text(s: dict[str, Any] | None) -> str:
     if s is None:
         return "settings unknown (no status frames)"
@@ -499,9 +482,6 @@ def format_side_by_side(r: SideBySide) -> list[str]:
             f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch {pitch}, roll {roll}"
         )
     return lines + [f"note: {n}" for n in r.notes]
-
-
-# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
 
 
 #: Flight colours, in order (the viewer uses the same).

@@ -38,9 +38,6 @@ MIN_NPERSEG = 32
 _TIME_TOLERANCE = 0.5
 
 
-# ---- aliasing ----------------------------------------------------------------------------------------------------
-
-
 def alias_hz(f_hz: float, rate_hz: float = C.AHRS_RATE_HZ) -> float:
     """Where a sinusoid at ``f_hz`` appears when sampled at ``rate_hz``: folded into [0, rate/2]."""
     r = math.fmod(abs(float(f_hz)), rate_hz)
@@ -96,9 +93,6 @@ def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_g
     return lines
 
 
-# ---- segmentation and Welch --------------------------------------------------------------------------------------
-
-
 def contiguous_runs(
     step, t_fw_s, values, decimation: int = 1, rate_hz: float = C.AHRS_RATE_HZ
 ) -> list[tuple[int, int]]:
@@ -136,9 +130,6 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
     psd[:, 1 : len(freq) - 1 + nperseg % 2] *= 2.0  # one-sided: all but 0 Hz and an even window's Nyquist bin
     return freq, starts, psd
-
-
-# ---- the whole capture -------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -289,9 +280,6 @@ def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
     return edges, thr_psd, counts
 
 
-# ---- peaks -------------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Peak:
     """A PSD peak: ``freq_hz`` (interpolated by a Gaussian fit of three bins), ``psd`` (unit²/Hz at the peak bin),
@@ -342,8 +330,6 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
         out.append(Peak(centre, float(p[i]), math.sqrt(2 * power), db))
     return out
 
-
-# ---- output: CSV and the printed summary -------------------------------------------------------------------------
 
 #: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
 CSV_COLUMNS = (
@@ -424,9 +410,6 @@ def format_summary(
         where = "below the Nyquist, seen directly" if f <= sp.nyquist_hz else "above the Nyquist, aliased"
         lines.append(f"mark {f:g} Hz ({where}): " + "; ".join(parts))
     return lines
-
-
-# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
 
 
 _AXIS_NAMES = {"x": "x (right)", "y": "y (forward)", "z": "z (up)"}
