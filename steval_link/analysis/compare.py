@@ -1,8 +1,6 @@
-"""``steval compare``: the firmware's own angles against the bit-exact replica (seeded from power-up or a status
-snapshot, restarted after dropped frames; its first difference diagnosed by :mod:`~steval_link.analysis.diagnosis`),
-the EKFs and accelerometer tilt: RMS and max |Δ| of ``thx`` (pitch, about x) and ``thy`` (roll, about y) in degrees,
-wrapped to ±180°, firmware NaN rows excluded; rate, jitter, drops, the step cost and the filter settings.
-Text-mode rows carry rounded values and no quaternion: the replica is not run on them."""
+"""``steval compare``: the firmware's own angles against the bit-exact replica (:mod:`~steval_link.analysis.diagnosis`;
+not on text-mode rows), the EKFs and accelerometer tilt: RMS and max |Δ| of ``thx`` (pitch, about x) and ``thy`` (roll,
+about y) in degrees, wrapped to ±180°, firmware NaN rows excluded; rate, drops, the step cost and the settings."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
-"""The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): steps that match bit for bit, the
-first that differs and *why*: the replica is re-run from the same seed with other settings (release variant, KI,
-correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named.
-
-A firmware whose own filter diverged (:func:`find_divergence`: q off the unit sphere or non-finite) is named with
-the step and its inputs; when the replica stayed finite on them, no setting is searched: the firmware's ``ahrs.c``
-differs."""
+"""The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): the steps that match bit for bit,
+the first that differs and *why*: the replica re-run from the same seed with other settings (release, KI, correction,
+kp, dt, MIN_THR and pairs of them) names the one that reproduces the firmware. A firmware whose own filter diverged
+(:func:`find_divergence`) is named with the step and its inputs; replica finite there: its ``ahrs.c`` differs."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""``steval report``: one capture (or several) as a lab report: a self-contained HTML page or Markdown with images.
-
-The report is data first: :class:`Section` s of sentences, lines, tables and figures (PNG), built from what the
-other analysis modules computed. :func:`render_html` inlines the CSS and figures (no script, nothing from the
-network); :func:`render_markdown` writes GitHub tables and PNG files. The page is written with the standard
-library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
+"""``steval report``: captures as a lab report, built as :class:`Section` s of sentences, lines, tables and figures: a
+self-contained HTML page (inline CSS and figures, no script, nothing from the network) or Markdown with PNG files.
+Written with the standard library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
-"""Link and timing statistics of a decoded stream: frame rate and jitter, drops, firmware restarts, AHRS cycle
-counts (:func:`rate_stats`), the plain-sentence notes on what the link could not carry (:func:`link_notes`), and the
-AHRS step cost (ETH exercise 6, :func:`step_cost`), said one way everywhere.
-
-Each status frame carries the min/mean/max DWT cycles of ``ahrs_fusion_ag`` + ``QuaternionToEuler`` over its
-``cyc_n`` steps; :func:`step_cost` joins them (means and medians weighted by ``cyc_n``). The unit is said as it is:
-``DWT cycles`` from a drone (µs at ``cpu_hz``), ``emulated instructions`` from an emulated capture (no time given)."""
+"""Link and timing statistics of a decoded stream (:func:`rate_stats`), notes on what the link could not carry
+(:func:`link_notes`), and the AHRS step cost (ETH exercise 6, :func:`step_cost`): the status frames' DWT cycles of
+``ahrs_fusion_ag`` + ``QuaternionToEuler`` joined, weighted by ``cyc_n``; ``DWT cycles`` from a drone (µs at
+``cpu_hz``), ``emulated instructions`` from an emulated capture (no time given)."""
 
 from __future__ import annotations
 

@@ -170,10 +170,8 @@ class Spectra:
 
 
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
-    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry`.
-
-    ``nperseg``: rows per window (default 256, or the longest run's power of two, never below 32); ``overlap``: the
-    fraction windows share. UserError without attitude rows or a run long enough for one window."""
+    """The spectra of a telemetry; ``nperseg``: rows per window (default 256, or the longest run's power of two, never
+    below 32); ``overlap``: the fraction windows share."""
     if not 0 <= overlap < 1:
         raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:

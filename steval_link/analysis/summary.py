@@ -121,11 +121,8 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
 
 
 def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
-    """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
-
-    ``duration_s``: firmware time of the attitude rows (host time without one); ``rate_hz``: attitude frames per second;
-    ``step_rate_hz``: AHRS steps per second (161.5); ``drop_ratio`` = missing / (received + missing); ``release``: the
-    ST release whose filter reproduces the rows (``variant`` forces one)."""
+    """Frames, duration (s of firmware time, else host time), rates, drops (``drop_ratio`` = missing / (received +
+    missing)), CRC failures, text lines, events, the filter settings and the release (``variant`` forces one)."""
     if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
         return summarize_ble(tel)
     a, s, st = tel.attitude, tel.status, tel.stats
