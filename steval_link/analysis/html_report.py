@@ -122,11 +122,8 @@ def _estimator_table(report: ComparisonReport) -> Table:
     truth = (report.truth or {}).get("rmse_deg")
     head = ["estimator", "steps", "pitch RMS", "pitch max |Δ|", "roll RMS", "roll max |Δ|"]
     head += ["RMSE vs truth", "note"] if truth else ["note"]
-    rows = []
-    if truth:
-        rows.append(
-            ["firmware (drone)", str(report.rows), "0", "0", "0", "0", fmt_number(truth.get("firmware"), ".3f"), ""]
-        )
+    fw = fmt_number(truth.get("firmware"), ".3f") if truth else ""
+    rows = [["firmware (drone)", str(report.rows), "0", "0", "0", "0", fw, ""]] if truth else []
     for t in report.traces:
         stats = (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)
         cells = [str(min(t.pitch.n, t.roll.n)), *map(fmt_number, stats)] if t.available else ["—", "", "", "", ""]

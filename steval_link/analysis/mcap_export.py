@@ -1,16 +1,9 @@
 """A decoded capture as an MCAP file (``steval export --mcap``) for Foxglove, PlotJuggler, ROS 2 tools and Rerun: JSON
-messages (``jsonschema`` schemas, written in full in the file) logged at the firmware's time (ns since boot).
-
-| topic | schema | one message per |
-|---|---|---|
-| ``/attitude/transform`` | ``foxglove.FrameTransform`` (``world`` → ``drone``) | attitude frame |
-| ``/attitude/pose`` | ``foxglove.PoseInFrame`` (frame ``world``) | attitude frame |
-| ``/attitude`` | ``steval.Attitude``: IMU inputs, the firmware's estimate | attitude frame |
-| ``/status`` | ``steval.Status`` | status frame |
-| ``/flight_control`` | ``steval.FlightControl`` | flight-control frame |
-
-Foxglove quaternions are the firmware's ``q`` normalised (text-mode rows: from their angles). Numbers are float32
-written with 9 significant digits; NaN is ``null``."""
+messages (``jsonschema`` schemas, written in full in the file) logged at the firmware's time (ns since boot), one per
+frame (:data:`TOPICS`): ``/attitude/transform`` (``foxglove.FrameTransform`` ``world`` → ``drone``), ``/attitude/pose``
+(``foxglove.PoseInFrame``), ``/attitude`` (``steval.Attitude``: IMU inputs, the firmware's estimate), ``/status`` and
+``/flight_control``. Foxglove quaternions are the firmware's ``q`` normalised (text-mode rows: from their angles).
+Numbers are float32 written with 9 significant digits; NaN is ``null``."""
 
 from __future__ import annotations
 

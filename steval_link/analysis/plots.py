@@ -388,9 +388,8 @@ def flight_control_figure(tel, *, title: str | None = None):
         if i < 2:
             ax.plot(tf, s1[:, i] - p[:, i], color="tab:green", lw=1.0, label="I = s1 − P (ki1 = 0)")
         _label_panel(ax, "rate setpoint [rad/s]", f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I")
+        ax.legend(fontsize=7, loc="upper right")
     axes[0, 0].legend(fontsize=8, loc="upper right")
-    for i in range(3):
-        axes[i, 1].legend(fontsize=7, loc="upper right")
     for ax, values, labels, unit, what in (
         (axes[3, 0], fc.motor_pwm, [m.label for m in MOTORS], "PWM [counts of 2000]", "motors (motor_pwm)"),
         (axes[3, 1], fc.inner_s2_pwm, ("x_s2 pitch", "y_s2 roll", "z_s2 yaw"), "PWM counts", "inner loop outputs s2"),

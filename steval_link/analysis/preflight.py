@@ -243,19 +243,16 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
                 f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
                 "drone over instead of levelling it."
             )
-        elif turned == "reversed":
+        else:
             rep.problems.append(
                 f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
                 f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "
                 "push the drone over instead of levelling it."
-            )
-            rep.lines.append(f"  attitude: REVERSED ({txt}).")
-        else:
-            rep.problems.append(
-                f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
+                if turned == "reversed"
+                else f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
                 f"its {_ANGLE_NAMES[mv.axis]}: pitch and roll are swapped."
             )
-            rep.lines.append(f"  attitude: SWAPPED ({txt}).")
+            rep.lines.append(f"  attitude: {turned.upper()} ({txt}).")
 
 
 def _fc_window(fc, steps: np.ndarray, a: int, b: int) -> np.ndarray:
