@@ -345,9 +345,8 @@ def q_norm(q) -> float:
 
 
 def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
-    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none):
-    its step, time, q and |q|, the inputs of that step and the one before, what the replica did (``rep``: replayed over
-    ``rows``) and the sentences saying so."""
+    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none): its step,
+    q, the inputs of that step and the one before, what the replica (``rep``) did, and the sentences saying so."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -430,9 +429,8 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
 def compare_replica(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
-    """The seeded replica against the firmware's binary rows: (report, its replay, those rows' indices into
-    ``tel.attitude``), or (None, None, None) without binary rows. ``variant`` forces a release (named by
-    ``variant_source``); default: the one bit-exact on the most steps."""
+    """(report, replay, binary rows) of the seeded replica against the firmware, (None, None, None) without binary
+    rows; ``variant`` forces a release, else the one bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None

@@ -98,9 +98,8 @@ def default_specs(
 
 @dataclass
 class TrialResult:
-    """The outcome of one trial (or capture): its name, step rate (Hz), step times ``t_s`` (M,) and ``movement``
-    (M,) bool; per label the inclination RMSE (deg), error (M,) rad, speed (steps/s), ``err_t_s`` (a firmware's own step
-    times, s) and :class:`~steval_link.analysis.report.Coverage`; the firmware runs (``--firmware``)."""
+    """One trial (or capture): step rate (Hz), times ``t_s`` (M,), ``movement`` (M,); per label the inclination RMSE
+    (deg), error (M,) rad, speed (steps/s), a firmware's own step times ``err_t_s`` and its coverage; firmware runs."""
 
     name: str
     rate_hz: float

@@ -64,9 +64,8 @@ def chain_gain(f_hz: float, sensor: str) -> float:
 
 @dataclass(frozen=True)
 class AliasLine:
-    """Where a vibration at ``source_hz`` (at the sensor, or a gyro image ``|k·416 Hz ± f|``) shows in one sensor's
-    rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude seen / at the sensor) and ``what`` ("direct", "alias",
-    "416 Hz ODR image")."""
+    """Where a vibration at ``source_hz`` shows in one sensor's rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude
+    seen / at the sensor) and ``what`` ("direct", "alias", "416 Hz ODR image")."""
 
     sensor: str
     source_hz: float
@@ -76,10 +75,8 @@ class AliasLine:
 
 
 def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.005) -> list[AliasLine]:
-    """The lines a sinusoid at ``f_hz`` (at the sensor) makes in the spectrum of ``sensor``'s rows sampled at
-    ``rate_hz``: the main line (:func:`alias_hz`, :func:`chain_gain`), then for the gyro the images of its 416 Hz output
-    register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong: a 12 Hz gyro line also shows at 36.3 and
-    60.6 Hz, about 1 % as strong."""
+    """The lines a sinusoid at ``f_hz`` makes in ``sensor``'s rows: the main line, then for the gyro the images of its
+    416 Hz register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong (12 Hz: 36.3 and 60.6 Hz)."""
     f = abs(float(f_hz))
     direct = f <= rate_hz / 2
     lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
@@ -96,9 +93,8 @@ def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_g
 def contiguous_runs(
     step, t_fw_s, values, decimation: int = 1, rate_hz: float = C.AHRS_RATE_HZ
 ) -> list[tuple[int, int]]:
-    """Runs ``(start, stop)`` of rows that are consecutive samples: each row ``decimation`` AHRS steps after the one
-    before, its firmware time that many periods later (± half), and every value finite. A dropped frame, a
-    restart (the step counter goes back), a time jump or a NaN ends a run."""
+    """Runs ``(start, stop)`` of consecutive rows: each ``decimation`` AHRS steps and periods (± half) after the one
+    before, every value finite; a dropped frame, a restart, a time jump or a NaN ends a run."""
     step = np.asarray(step, dtype=np.int64)
     t = np.asarray(t_fw_s, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
@@ -280,9 +276,8 @@ def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
 
 @dataclass(frozen=True)
 class Peak:
-    """A PSD peak: ``freq_hz`` (interpolated by a Gaussian fit of three bins), ``psd`` (unit²/Hz at the peak bin),
-    ``amplitude`` (unit, peak, of the sinusoid that makes the power over ±3 bins above the floor) and
-    ``above_floor_db`` (over the median PSD)."""
+    """A PSD peak: ``freq_hz`` (Gaussian fit of three bins), ``psd`` (unit²/Hz), ``amplitude`` (unit, of the sinusoid
+    making the power over ±3 bins above the floor) and ``above_floor_db`` (over the median PSD)."""
 
     freq_hz: float
     psd: float
