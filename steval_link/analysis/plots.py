@@ -146,14 +146,10 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ax_txt.text(
         0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
     )
-    src = report.source.get("path") or "capture"
-    shown = (["ST-Mahony replica"] if replica is not None else []) + [label for _, label, _, _ in traces]
-    fig.suptitle(
-        title
-        or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
-        "(axes: x right, y forward, z up)",
-        fontsize=11,
-    )
+    src = Path(str(report.source.get("path") or "capture")).name
+    shown = ", ".join((["ST-Mahony replica"] if replica is not None else []) + [label for _, label, _, _ in traces])
+    default = f"steval compare: {src} — firmware vs {shown or 'no estimator'} (axes: x right, y forward, z up)"
+    fig.suptitle(title or default, fontsize=11)
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
     return fig
 
@@ -400,12 +396,9 @@ def flight_control_figure(tel, *, title: str | None = None):
         ax.legend(fontsize=7, ncol=len(labels) // 2, loc="upper right")
         ax.set_xlabel("firmware time since the first frame [s]")
     every = int(np.max(fc.fc_every)) if len(fc) else 0
-    src = (getattr(tel, "source", None) or {}).get("path") or "capture"
-    fig.suptitle(
-        title
-        or f"steval compare: {Path(str(src)).name} — flight control ({len(fc)} frames, one every {every} AHRS steps)",
-        fontsize=11,
-    )
+    src = Path(str((getattr(tel, "source", None) or {}).get("path") or "capture")).name
+    default = f"steval compare: {src} — flight control ({len(fc)} frames, one every {every} AHRS steps)"
+    fig.suptitle(title or default, fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
@@ -496,8 +489,7 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
         mg = np.mean(np.asarray(res.gyro_mdps, np.float64), axis=0)
         ma = np.mean(np.asarray(res.acc_mg, np.float64), axis=0)
         inputs = f"mean gyro {vec(np.round(mg, 1))} mdps, acc {vec(np.round(ma, 1))} mg"
-    fig.suptitle(
-        title or f"steval simulate: {_run_name(res)}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
-    )
+    default = f"steval simulate: {_run_name(res)}, {res.iterations} iterations\n{inputs}{noise}"
+    fig.suptitle(title or default, fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.96 - 0.035 * ((len(runs) + 2) // 3) if compare else 0.96))
     return fig

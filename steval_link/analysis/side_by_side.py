@@ -564,8 +564,5 @@ def _still_table(ax, r: SideBySide) -> None:
     table.scale(1, 1.4)
     for i in range(len(rows)):
         table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
-    ax.set_title(
-        "against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
-        fontsize=10,
-        loc="left",
-    )
+    title = "against accel-only tilt, still phases only (drift: the mean error in the last still phase)"
+    ax.set_title(title, fontsize=10, loc="left")
