@@ -46,8 +46,7 @@ def _pick(table, rows: np.ndarray, keys: tuple[str, ...]) -> SimpleNamespace:
 
 
 def filter_settings_report(tel) -> dict[str, Any] | None:
-    """The filter settings the (binary) status frames report, compared with the 170120 defaults; None without
-    binary status frames. Text-mode status lines carry only KI and the flags (``ki`` and ``flags``)."""
+    """The filter settings the status frames report against the 170120 defaults (text mode: ki, flags), or None."""
     s = tel.status
     ex = np.asarray(s.exact, bool) if len(s) else np.zeros(0, bool)
     if len(s) and not ex.any():

@@ -288,8 +288,7 @@ def _tilt_rms_deg(q_a, q_b) -> float:
 
 
 def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
-    """Per capture with binary attitude frames: RMS tilt difference (deg) of each estimator from the firmware's
-    attitude and from accelerometer-only tilt. ``names``: display name → what :func:`registry.create` takes."""
+    """Per capture with binary frames: RMS tilt difference (deg) of each of ``names`` from firmware and accel tilt."""
     out = []
     for p in bundled_captures() if paths is None else paths:
         src = read_recording(p)

@@ -255,8 +255,7 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def evaluate_capture(
     path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None, progress: Progress | None = None
 ) -> TrialResult:
-    """Evaluate estimators on a capture's AHRS inputs against its sidecar, or the truth it keeps (chunks T of
-    ``steval emulate --broad``); the firmware's own ``q`` of binary frames is scored as ``firmware``."""
+    """Score estimators on a capture against its sidecar or kept truth; binary frames' ``q`` as ``firmware``."""
     p = Path(path)
     src = read_recording(p)  # missing, unreadable, empty: its own sentence
     try:
@@ -424,8 +423,7 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
-    """Bars of RMSE per estimator per trial (an incomplete score hollow and hatched, its coverage on it)
-    and the inclination error over time of trial ``detail`` (a dashed line where an estimate diverged)."""
+    """Bars of RMSE per estimator and trial (incomplete ones hatched) and trial ``detail``'s error over time."""
     plt = require_matplotlib()
     s = summary(results)
     labels = s["estimators"]

@@ -113,8 +113,7 @@ class FirmwareResult:
 
 
 def gains_text(settings: MahonySettings | None, thr, *, from_status: bool) -> str:
-    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``;
-    ``thr``: each step's throttle; ``from_status``: the settings came from its status frames."""
+    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``."""
     st = settings or MahonySettings()
     t = np.asarray(thr).reshape(-1)
     ground = t < st.min_thr

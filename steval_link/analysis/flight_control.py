@@ -89,8 +89,7 @@ def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
 
 
 def no_flight_figure_reason(fc) -> str | None:
-    """Why a capture gets no flight-control figure (one sentence), or None: it needs frames (``tel.fc``)
-    and the drone armed in one (disarmed, the targets sit at the sticks' rest and the motors at 0)."""
+    """Why a capture gets no flight-control figure (no frames, or never armed), or None."""
     if len(fc) == 0:
         return "the capture has no flight-control frames"
     if not (np.asarray(fc.fc_flags).astype(np.int64) & FC_ARMED).any():

@@ -292,8 +292,7 @@ def _md_cell(text: str) -> str:
 
 
 def render_markdown(report: LabReport, images_dir: Path, images_link: str) -> str:
-    """The report as Markdown: GitHub tables, each figure written to ``images_dir`` as ``NN-KEY.png`` and linked as
-    ``images_link/NN-KEY.png`` (relative to the Markdown file)."""
+    """The report as Markdown, each figure written to ``images_dir`` as ``NN-KEY.png``, linked under ``images_link``."""
     images_dir.mkdir(parents=True, exist_ok=True)
     out = [f"# {report.title}", ""]
     n = 0

@@ -16,8 +16,7 @@ from steval_link.link import protocol as P
 
 
 def relative_time_s(step, t_fw_s) -> np.ndarray:
-    """Firmware time since the first row, s, kept increasing across firmware restarts (each restart continues one
-    AHRS period after the last row before it) so plots never run backwards."""
+    """Firmware time since the first row, s, kept increasing across firmware restarts (plots never run backwards)."""
     t = np.asarray(t_fw_s, dtype=np.float64)
     if t.size == 0:
         return t

@@ -38,8 +38,7 @@ def mat_name(name: str) -> str:
 
 
 def _value(v: Any) -> Any:
-    """Nested dicts as structs (names made valid), lists of dicts or mixed lists as cell arrays, bool as uint8,
-    numpy arrays as they are (1-D ones saved as columns)."""
+    """A value as MATLAB takes it: dicts as structs, mixed lists as cell arrays, bool as uint8, None as []."""
     if isinstance(v, dict):
         return {mat_name(k): _value(x) for k, x in v.items()}
     if isinstance(v, np.ndarray):

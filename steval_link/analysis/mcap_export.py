@@ -272,8 +272,7 @@ def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:
-    """Write ``tel`` as MCAP to ``out`` (a binary file or a path), ``metadata`` (name → dict) as metadata records
-    (values as JSON text); returns the message count per topic."""
+    """Write ``tel`` as MCAP to ``out`` (file or path), ``metadata`` as records; returns the message count per topic."""
     records = require_mcap()
     with open(out, "wb") if isinstance(out, (str, Path)) else contextlib.nullcontext(out) as stream:
         w = McapWriter(stream, records)

@@ -196,8 +196,7 @@ def _check_moves(rep: PreflightReport, att, gyro: np.ndarray, fc) -> bool:
 
 
 def _axis_turned(values: np.ndarray, axis: int, sign: int) -> tuple[int, str]:
-    """The axis with the largest ``values`` and how it compares with the expected ``axis`` turned by ``sign``:
-    "ok", "reversed" (that axis, the other way) or "swapped" (another axis)."""
+    """The dominant axis of ``values`` and "ok", "reversed" (the other way) or "swapped" (another axis)."""
     dom = int(np.argmax(np.abs(values)))
     if dom != axis:
         return dom, "swapped"

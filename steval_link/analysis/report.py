@@ -488,8 +488,7 @@ def _truth_lines(truth: dict | None, w: int) -> list[str]:
 
 
 def estimator_summary(name: str, est, tel) -> dict[str, Any]:
-    """One host estimator over a capture: its valid rows, the first invalid step, and its RMS difference (deg) from the
-    firmware's pitch (thx) and roll (thy) where both are finite."""
+    """One host estimator over a capture: valid rows, first invalid step, RMS difference (deg) from thx/thy."""
     a = tel.attitude
     valid = np.asarray(est.valid, bool) & np.isfinite(est.thx_rad) & np.isfinite(est.thy_rad)
     bad = np.flatnonzero(~valid)

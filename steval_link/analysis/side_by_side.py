@@ -402,8 +402,7 @@ def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, n
 
 
 def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None) -> SideBySide:
-    """Put ``flights`` on one time axis, label them (``labels`` first), measure each against its accel-only tilt
-    and each later one against the first."""
+    """Put ``flights`` on one time axis, label them, and measure each against its accel-only tilt and the first."""
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)

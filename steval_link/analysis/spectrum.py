@@ -166,8 +166,7 @@ class Spectra:
 
 
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
-    """The spectra of a telemetry; ``nperseg``: rows per window (default 256, or the longest run's power of two, never
-    below 32); ``overlap``: the fraction windows share."""
+    """The spectra of a telemetry; ``nperseg`` default 256 (or the longest run's power of two, at least 32)."""
     if not 0 <= overlap < 1:
         raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:
@@ -517,8 +516,7 @@ def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
 
 
 def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | None = None, title: str = ""):
-    """The ``--plot`` figure: the Welch PSD per axis (Nyquist, marks, peaks, a register image named), the
-    spectrograms, and the gyro's frequency-vs-throttle map (else a panel saying what the lines are)."""
+    """The ``--plot`` figure: PSD per axis, spectrograms, the frequency-vs-throttle map (else what the lines are)."""
     plt = require_matplotlib()
     with plt.rc_context(_RC):
         fig, axes = plt.subplots(3, 3, figsize=(16, 14), squeeze=False)
