@@ -267,12 +267,8 @@ def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hi
     att = tel.attitude
     rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
     steps = np.asarray(att.step)[rows]
-    notes = []
-    lost = np.ones(n, bool)
-    lost[steps] = False
-    lost &= truth.movement
-    if lost.any():
-        notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
+    lost = np.asarray(truth.movement, bool) & ~np.isin(np.arange(n), steps)
+    notes = [f"{int(lost.sum())} movement steps without an attitude frame (not scored)"] if lost.any() else []
     if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
         inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
         if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):

@@ -174,10 +174,8 @@ def _estimate_traces(report) -> list[tuple[str, str, dict[str, np.ndarray], tupl
     for name, est in report.estimates.items():
         label = next((tr.label for tr in report.traces if tr.name == name), name)
         valid = np.asarray(est.valid, bool)
-        x = np.where(valid, np.degrees(np.asarray(est.thx_rad, np.float64)), np.nan)
-        y = np.where(valid, np.degrees(np.asarray(est.thy_rad, np.float64)), np.nan)
-        style = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
-        traces.append((name, label, {"pitch": x, "roll": y}, style))
+        degrees = {k: np.where(valid, v, np.nan) for k, v in _degrees(est.thx_rad, est.thy_rad).items()}
+        traces.append((name, label, degrees, _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)))
     return traces
 
 
