@@ -188,13 +188,9 @@ def _combine(a: tuple[dict, MahonySettings], b: tuple[dict, MahonySettings], bas
 
 def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: int, r1: int) -> int:
     """Rows from ``r0`` (the seed row) that the replica reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
-    a = view.attitude
-    q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings, state=seed_state)
-    ok = (
-        bits_equal(q, a.q_wxyz[r0:r1]).all(axis=1)
-        & bits_equal(thx, a.thx_rad[r0:r1])
-        & bits_equal(thy, a.thy_rad[r0:r1])
-    )
+    a, rows = view.attitude, slice(r0, r1)
+    q, thx, thy, _ = mahony_run(a.acc_mg[rows], a.gyro_mdps[rows], a.thr[rows], settings=settings, state=seed_state)
+    ok = bits_equal(q, a.q_wxyz[rows]).all(axis=1) & bits_equal(thx, a.thx_rad[rows]) & bits_equal(thy, a.thy_rad[rows])
     bad = np.flatnonzero(~ok)
     return int(bad[0]) if bad.size else r1 - r0
 

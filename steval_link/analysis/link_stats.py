@@ -85,9 +85,7 @@ def link_notes(tel) -> list[str]:
     if not len(s) or int(s.tx_dropped[-1]) == 0:
         return []
     ex = np.flatnonzero(np.asarray(s.exact, bool))
-    baud = int(s.baud[ex[-1]]) if ex.size else 0
-    if not baud:
-        baud = int(((tel.source or {}).get("header") or {}).get("baud") or 0)
+    baud = (int(s.baud[ex[-1]]) if ex.size else 0) or int(((tel.source or {}).get("header") or {}).get("baud") or 0)
     need = P.ATTITUDE_FRAME_SIZE * 10 * C.AHRS_RATE_HZ + P.STATUS_FRAME_SIZE * 10
     dropped = int(s.tx_dropped[-1])
     if baud and baud < need:
