@@ -71,8 +71,8 @@ class CheckReport:
             "steps_per_s": ev.rounded(self.steps_per_s),
             "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
             "captures": self.captures,
+            "broad": ev.summary(self.broad) if self.broad else None,
         }
-        d["broad"] = ev.summary(self.broad) if self.broad else None
         if self.broad_note:
             d["broad_note"] = self.broad_note
         return d
@@ -165,13 +165,11 @@ def _attempt(check_name: str, fn) -> tuple[Check, str]:
 
 
 def _check_shapes(name):
-    est = registry.create(name)
     acc, gyro = _held(0.0, 0.0, 0.5, 1)
-    q1 = np.asarray(est.step(acc[0], gyro[0], 0), dtype=np.float64)
+    q1 = np.asarray(registry.create(name).step(acc[0], gyro[0], 0), dtype=np.float64)
     if q1.shape != (4,):
         return False, f"step() returned shape {q1.shape}, not (4,)"
-    est = registry.create(name)
-    res = est.run(acc, gyro, np.zeros(len(acc), np.int64))
+    res = registry.create(name).run(acc, gyro, np.zeros(len(acc), np.int64))
     q = np.asarray(res.q_wxyz, dtype=np.float64)
     if q.shape != (len(acc), 4) or np.shape(res.valid) != (len(acc),):
         return False, f"run() of {len(acc)} rows gave q of shape {q.shape}, valid {np.shape(res.valid)}"
