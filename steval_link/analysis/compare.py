@@ -184,20 +184,16 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     cov: dict[str, Coverage] = {}
     scored = movement & np.isfinite(q_true).all(axis=1)
     t_fw = np.asarray(a.t_fw_s, np.float64)
-
-    def covered(ok) -> Coverage:
-        return coverage_of(ok, scored, a.step, t_fw)
-
-    _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
-    cov["firmware"] = covered(np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad))
+    eulers = [("firmware", a.thx_rad, a.thy_rad)]
     if rep is not None and prow is not None:
-        thx, thy = on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)
-        _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
-        cov[REPLICA_TRACE] = covered(np.isfinite(thx) & np.isfinite(thy))
+        eulers.append((REPLICA_TRACE, on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)))
+    for name, thx, thy in eulers:
+        _, out[name] = score_euler(thx, thy, q_true, movement)
+        cov[name] = coverage_of(np.isfinite(thx) & np.isfinite(thy), scored, a.step, t_fw)
     for name, est in estimates.items():
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)
-        cov[name] = covered(np.isfinite(q).all(axis=1))
+        cov[name] = coverage_of(np.isfinite(q).all(axis=1), scored, a.step, t_fw)
     return {
         "source": "capture chunks T",
         "steps_matched": int(hit.sum()),

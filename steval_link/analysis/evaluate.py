@@ -446,8 +446,7 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
                 h = bar.get_height() if np.isfinite(bar.get_height()) else 0.0
                 ax0.annotate(percent(f), (bar.get_x() + bar.get_width() / 2, h), ha="center", va="bottom", fontsize=7)
     ax0.set_xticks(x, [r.name for r in results], rotation=15, ha="right", fontsize=8)
-    ax0.set_ylabel("inclination RMSE (deg)")
-    ax0.set_title("Inclination error against ground truth (movement samples)")
+    ax0.set(ylabel="inclination RMSE (deg)", title="Inclination error against ground truth (movement samples)")
     ax0.legend(fontsize=8, ncol=3)
     ax0.grid(axis="y", alpha=0.3)
     r = results[min(max(detail, 0), n - 1)]
