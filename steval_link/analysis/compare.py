@@ -58,9 +58,8 @@ def compare_capture(
     variant: str | None = None,
     variant_source: str = "variant setting",
 ) -> ComparisonReport:
-    """Compare a capture's firmware angles with the seeded replica and with ``estimators`` (registry names run
-    from power-up; missing ones reported unavailable). ``settings``: the replica's (default: the status frames', else
-    the firmware's); ``variant``: its ST release (default: recognised from the data). ValueError: no attitude row."""
+    """Compare a capture's firmware angles with the seeded replica (``settings`` default: the status frames', else the
+    firmware's; ``variant`` default: recognised) and with ``estimators`` run from power-up (missing: unavailable)."""
     a = tel.attitude
     n = len(a)
     if n == 0:

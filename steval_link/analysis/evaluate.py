@@ -49,11 +49,10 @@ class EstimatorSpec:
 def default_specs(
     rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | str | None = None
 ) -> list[EstimatorSpec]:
-    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450:
-    kp 0.4 / thr 0: kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``,
-    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order, or one
-    comma-separated text (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice
-    or none."""
+    """The estimators of ``steval evaluate`` at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450: kp 0.4 / thr 0:
+    kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``, ``mekf``, ``vqf``
+    (when installed). ``only``: labels, references or selected objects, or one comma-separated text (``st-mahony``:
+    both Mahony runs)."""
     mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
         "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
@@ -483,9 +482,8 @@ def evaluate_data(
     progress: Callable[[float, str], None] | None = None,
 ) -> list[TrialResult]:
     """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and each
-    ``firmware`` ELF on the emulated board with each trial; every input is checked before the work. ``own_rate``:
-    not through the STEVAL pipeline (``sensor_noise``: the LSM6DSL's white noise); ``max_seconds``: each trial's
-    first seconds; ``variant``: the replica's release on a firmware's inputs."""
+    ``firmware`` ELF on the emulated board with each trial. ``own_rate``: not through the STEVAL pipeline; ``variant``:
+    the replica's release on a firmware's inputs. Every input is checked before the work."""
     items = broad.trial_paths(paths)
     n_specs = len(default_specs(100.0, only=estimators))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):

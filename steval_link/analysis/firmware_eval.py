@@ -66,9 +66,8 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
 
 @dataclass
 class FirmwareResult:
-    """One firmware on one trial: ``source`` "frames" or "globals" (read by symbol); ``thx_rad``, ``thy_rad`` (M,)
-    float32 per step (NaN: none); ``err_rad`` (M,) and ``rmse_deg`` over the movement steps; ``instructions`` (K,) per
-    AHRS step; the replica's RMSE on the firmware's inputs (None: inputs unknown), its bit-exact steps and settings."""
+    """One firmware on one trial: ``source`` "frames" or "globals" (by symbol); ``thx_rad``, ``thy_rad`` (M,) float32
+    per step (NaN: none), scored over the movement steps; ``instructions`` per AHRS step; the replica on its inputs."""
 
     label: str
     elf: str

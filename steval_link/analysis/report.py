@@ -193,10 +193,9 @@ class TraceComparison:
 
 @dataclass(frozen=True)
 class ReplicaComparison:
-    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a known replica state,
-    ``bit_exact`` of them carrying the firmware's q, thx and thy bits; each (re)start in ``seeds``; the first
-    differing row; ``matching_variant``, the changed settings that reproduce the firmware (None: none found);
-    ``divergence``, where the firmware's q left the unit sphere; ``filter``, the ST release the replica ran."""
+    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a state known, ``bit_exact``
+    with the firmware's q, thx and thy bits; the first differing row; ``matching_variant``, the changed settings that
+    reproduce the firmware (None: none found); ``filter``, the ST release the replica ran."""
 
     rows: int
     seeded: int
@@ -251,9 +250,8 @@ class ReplicaComparison:
 
 @dataclass(frozen=True)
 class RateStats:
-    """Timing and link health of a capture: ``duration_s`` of firmware time (summed between restarts), rows and AHRS
-    steps per second, ``period_*_ms`` between consecutive steps, frames lost on the link and in the firmware's TX
-    queue (None without status frames), and the ``ahrs_fusion_ag`` cost the status frames report."""
+    """Timing and link health of a capture: ``duration_s`` of firmware time (summed between restarts), rates, periods
+    between consecutive steps, frames lost (TX queue: None without status frames) and the ``ahrs_fusion_ag`` cost."""
 
     duration_s: float
     rate_hz: float | None

@@ -133,9 +133,8 @@ def labels_by_difference(flights: Sequence) -> list[str]:
 
 @dataclass
 class Flight:
-    """One capture on the common time axis: ``kind`` "serial" or "ble"; ``angles`` "firmware" or "st-mahony replica";
-    ``t_s`` (N,) s since the first frame minus the lag; ``thx_rad``/``thy_rad`` pitch (about x)/roll (about y);
-    ``settings`` the first status frame's filter settings (None without); ``facts`` the capture header's."""
+    """One capture on the common time axis: ``t_s`` (N,) s since the first frame minus the lag; ``thx_rad``/``thy_rad``
+    pitch (about x)/roll (about y), ``angles`` "firmware" or "st-mahony replica"; the first status's settings."""
 
     path: Path
     label: str

@@ -131,9 +131,8 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
 @dataclass
 class Spectra:
     """Spectra of one capture; column k of every PSD is ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc x, y, z
-    in mg²/Hz). Shapes: F bins 0 … Nyquist, W windows (centre ``window_t_fw_s`` s since boot, mean throttle
-    ``window_thr``), B throttle bins (``thr_edges`` gTHR; ``thr_psd`` NaN when empty). ``rate_hz``: rows per second
-    on the firmware clock (≈ 161.54 Hz); ``decimation``: AHRS steps per row; ``hop``: rows between window starts."""
+    in mg²/Hz) over F bins 0 … Nyquist, W windows (centre ``window_t_fw_s`` s since boot) and B throttle bins (gTHR;
+    NaN when empty). ``rate_hz``: rows per second on the firmware clock (≈ 161.54 Hz)."""
 
     freq_hz: np.ndarray
     psd: np.ndarray
@@ -336,9 +335,8 @@ def _num(v) -> str:
 
 
 def write_csv(sp: Spectra, stream) -> int:
-    """The spectra as one CSV table (:data:`CSV_COLUMNS`); ``section`` is ``psd`` (the Welch average),
-    ``spectrogram`` (per window: its centre ``t_fw_s`` and mean ``thr``) or ``throttle`` (per non-empty bin
-    ``thr_lo`` … ``thr_hi``). Returns the rows written."""
+    """The spectra as one CSV table; ``section`` ``psd`` (Welch average), ``spectrogram`` (per window: ``t_fw_s``,
+    mean ``thr``) or ``throttle`` (per non-empty bin ``thr_lo`` … ``thr_hi``). Returns the rows written."""
     w = csv.writer(stream, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     # (the row's first cells, its PSD (F, 6)) per section
