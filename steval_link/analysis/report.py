@@ -193,7 +193,7 @@ class TraceComparison:
 
 @dataclass(frozen=True)
 class ReplicaComparison:
-    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a state known, ``bit_exact``
+    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a state, ``bit_exact``
     with the firmware's q, thx and thy bits; the first differing row; ``matching_variant``, the changed settings that
     reproduce the firmware (None: none found); ``filter``, the ST release the replica ran."""
 
