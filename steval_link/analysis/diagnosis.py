@@ -68,8 +68,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     rows = np.flatnonzero(ex)
     picked = _pick(s, rows, ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags"))
     settings = [MahonySettings.of_status(picked, j) for j in range(rows.size)]
-    last = settings[-1]
-    d = _settings_dict(last)
+    d = _settings_dict(settings[-1])
     defaults = _settings_dict(MahonySettings())
     changes = sum(1 for x, y in zip(settings[:-1], settings[1:]) if not _same_settings(x, y))
     return {

@@ -264,11 +264,10 @@ def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
         elif key != "timestamp":
             values = np.asarray(getattr(rows, RENAMED.get(key, key)))
             columns[key] = [_list(v) for v in values] if prop["type"] == "array" else _list(values)
-    datas = [
+    return ns_all, [
         json.dumps(dict(zip(columns, row)), separators=(",", ":"), allow_nan=False).encode()
         for row in zip(*columns.values())
     ]
-    return ns_all, datas
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:

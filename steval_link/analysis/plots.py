@@ -56,17 +56,11 @@ def _decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -
     for a, b in zip(edges[:-1], edges[1:]):
         seg = y[a:b]
         fin = np.isfinite(seg)
-        if not fin.any():
-            tt += [t[a]]
-            yy += [np.nan]
-            continue
-        i_lo = a + int(np.nanargmin(seg))
-        i_hi = a + int(np.nanargmax(seg))
-        for i in sorted((i_lo, i_hi)):
-            tt.append(t[i])
-            yy.append(y[i])
-        if not fin.all():
-            tt.append(t[b - 1])
+        picks = sorted((a + int(np.nanargmin(seg)), a + int(np.nanargmax(seg)))) if fin.any() else []
+        tt += [t[i] for i in picks]
+        yy += [y[i] for i in picks]
+        if not fin.all():  # a NaN gap stays a gap
+            tt.append(t[b - 1] if picks else t[a])
             yy.append(np.nan)
     return np.asarray(tt), np.asarray(yy)
 
