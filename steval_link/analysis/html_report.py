@@ -99,19 +99,18 @@ def verdict_sentences(report: ComparisonReport) -> list[str]:
         ]
     if p.seeded == 0:
         return [f"The replica could not be started: {p.unseeded_reason or 'no status snapshot'}."]
-    out = []
     if p.all_exact:
-        out.append(
+        out = [
             f"Bit-exact on {p.bit_exact} of {p.seeded} steps: the Python replica of ahrs_fusion_ag reproduces "
             "every quaternion and angle the firmware sent, bit for bit."
-        )
+        ]
     else:
         fm = p.first_mismatch
-        out.append(
+        out = [
             f"NOT bit-exact: {p.bit_exact} of {p.seeded} steps agree; the first difference is at step {fm['step']} "
-            f"(t = {fm['t_rel_s']:.3f} s into the capture)."
-        )
-        out += p.diagnosis
+            f"(t = {fm['t_rel_s']:.3f} s into the capture).",
+            *p.diagnosis,
+        ]
     if p.seeded < p.rows:
         out.append(f"{p.rows - p.seeded} of {p.rows} rows were not covered (before a snapshot, or after lost frames).")
     return out

@@ -280,12 +280,10 @@ def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()
 def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np.ndarray:
     """(N,) True on the rows of still phases: gyro norm < :data:`STILL_GYRO_DPS`, accelerometer norm within
     :data:`STILL_ACC_MG` of 1000 mg, in runs lasting at least :data:`STILL_MIN_S`."""
-    acc = np.asarray(acc_mg, np.float64)
-    gyro = np.asarray(gyro_mdps, np.float64)
+    gyro = np.linalg.norm(np.asarray(gyro_mdps, np.float64), axis=1)
+    acc = np.linalg.norm(np.asarray(acc_mg, np.float64), axis=1)
     with np.errstate(invalid="ignore"):
-        quiet = (np.linalg.norm(gyro, axis=1) < STILL_GYRO_DPS * 1000.0) & (
-            np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG
-        )
+        quiet = (gyro < STILL_GYRO_DPS * 1000.0) & (np.abs(acc - 1000.0) < STILL_ACC_MG)
     out = np.zeros_like(quiet)
     t = np.asarray(t_s, np.float64)
     for a, b in true_runs(quiet):

@@ -48,9 +48,7 @@ def _boxcar_gain(f_hz: float) -> float:
     """|gain| of the main loop's 5-sample average at the ISR rate (1 at 0 Hz, 0 at multiples of the AHRS rate)."""
     x = math.pi * f_hz / C.ISR_RATE_HZ
     s = math.sin(x)
-    if abs(s) < 1e-12:
-        return 1.0
-    return abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
+    return 1.0 if abs(s) < 1e-12 else abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
 
 
 def chain_gain(f_hz: float, sensor: str) -> float:
@@ -430,9 +428,7 @@ def _db(psd: np.ndarray) -> np.ndarray:
 def _levels(values: np.ndarray) -> tuple[float, float]:
     """Colour range of a heat map: the 2nd to the top percentile of its finite dB values (noise floor to peak)."""
     v = values[np.isfinite(values)]
-    if v.size == 0:
-        return 0.0, 1.0
-    lo, hi = float(np.percentile(v, 2)), float(v.max())
+    lo, hi = (float(np.percentile(v, 2)), float(v.max())) if v.size else (0.0, 1.0)
     return lo, hi if hi > lo else lo + 1.0
 
 
