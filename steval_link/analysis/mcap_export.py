@@ -176,11 +176,8 @@ def _display_q(att) -> np.ndarray:
     q = np.asarray(att.q_wxyz, np.float64).copy()
     missing = ~np.isfinite(q).all(axis=1)
     if missing.any():
-        q[missing] = quaternion_from_euler(
-            np.nan_to_num(np.asarray(att.thx_rad, np.float64)[missing]),
-            np.nan_to_num(np.asarray(att.thy_rad, np.float64)[missing]),
-            np.nan_to_num(np.asarray(att.thz_rad, np.float64)[missing]),
-        )
+        angles = (att.thx_rad, att.thy_rad, att.thz_rad)
+        q[missing] = quaternion_from_euler(*(np.nan_to_num(np.asarray(v, np.float64)[missing]) for v in angles))
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.sqrt((q * q).sum(axis=1))
         q = np.where((n > 1e-6)[:, None], q / n[:, None], np.array([1.0, 0, 0, 0]))
