@@ -154,9 +154,8 @@ class _Globals:
         self.inputs.append((*acc.tolist(), *gyro.tolist(), thr))
 
     def _end(self, board) -> None:
-        nan = float("nan")
-        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [nan] * 2
-        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [nan] * 4
+        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [math.nan] * 2
+        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [math.nan] * 4
         self.outputs.append((*e, *q))
 
 

@@ -188,8 +188,7 @@ def _durations(a) -> tuple[float, float | None, float]:
     duration = float(np.sum(a.t_fw_s[np.append(starts[1:], n) - 1] - a.t_fw_s[starts])) if n > 1 else 0.0
     host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
     host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
-    if duration <= 0 and host_duration:
-        duration = host_duration
+    duration = host_duration if duration <= 0 and host_duration else duration
     steps = float(np.sum(np.where(restarts, 0, np.diff(a.step)))) if n > 1 else 0.0
     return duration, host_duration, steps
 
