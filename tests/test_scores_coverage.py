@@ -13,8 +13,8 @@ from support.cli import run_cli
 
 import steval_link as sl
 from steval_link.analysis import evaluate as ev
-from steval_link.analysis.coverage import coverage_of
 from steval_link.analysis.firmware_eval import cut_trial
+from steval_link.analysis.report import coverage_of
 from steval_link.emulation import broad
 from steval_link.errors import UserError
 

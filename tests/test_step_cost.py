@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support.cli import run_cli
 
-from steval_link.analysis.step_cost import DWT_CYCLES, EMULATED_INSTRUCTIONS, step_cost
+from steval_link.analysis.link_stats import DWT_CYCLES, EMULATED_INSTRUCTIONS, step_cost
 from steval_link.link.capture import demo_capture_path, read_capture
 from steval_link.link.load import load_telemetry
 

@@ -1,8 +1,6 @@
-"""``steval compare``: the firmware's own angles against the bit-exact replica (seeded from power-up or a status
-snapshot, restarted after dropped frames; its first difference diagnosed by :mod:`~steval_link.analysis.diagnosis`),
-the EKFs and accelerometer tilt: RMS and max |Δ| of ``thx`` (pitch, about x) and ``thy`` (roll, about y) in degrees,
-wrapped to ±180°, firmware NaN rows excluded; rate, jitter, drops, the step cost and the filter settings.
-Text-mode rows carry rounded values and no quaternion: the replica is not run on them."""
+"""``steval compare``: the firmware's own angles against the bit-exact replica (:mod:`~steval_link.analysis.diagnosis`;
+not on text-mode rows), the EKFs and accelerometer tilt: RMS and max |Δ| of ``thx`` (pitch, about x) and ``thy`` (roll,
+about y) in degrees, wrapped to ±180°, firmware NaN rows excluded; rate, drops, the step cost and the settings."""
 
 from __future__ import annotations
 
@@ -11,22 +9,22 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from steval_link.analysis.coverage import Coverage, coverage_of
 from steval_link.analysis.diagnosis import compare_replica, filter_settings_report
-from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s
+from steval_link.analysis.link_stats import link_notes, rate_stats, relative_time_s, step_cost
 from steval_link.analysis.report import (
     REPLICA_TRACE,
     TRACE_LABELS,
     AngleStats,
     ComparisonReport,
+    Coverage,
     TraceComparison,
     angle_diff_rad,
+    coverage_of,
     format_report,  # noqa: F401 (the CLI imports it from here)
     json_number,
     on_rows,
     truth_on_steps,
 )
-from steval_link.analysis.step_cost import step_cost
 from steval_link.analysis.summary import values_bad_report
 from steval_link.emulation import broad
 from steval_link.emulation.broad import score_euler
@@ -40,8 +38,7 @@ from steval_link.link.plausibility import held_back_sentence
 
 
 def _trace(name: str, label: str, thx, thy, valid, fw_thx, fw_thy, note: str = "") -> TraceComparison:
-    thx = np.asarray(thx, dtype=np.float64)
-    thy = np.asarray(thy, dtype=np.float64)
+    thx, thy = np.asarray(thx, dtype=np.float64), np.asarray(thy, dtype=np.float64)
     valid = np.asarray(valid, bool) & np.isfinite(thx) & np.isfinite(thy)
     dx = np.where(valid, angle_diff_rad(thx, fw_thx), np.nan)
     dy = np.where(valid, angle_diff_rad(thy, fw_thy), np.nan)
@@ -61,9 +58,8 @@ def compare_capture(
     variant: str | None = None,
     variant_source: str = "variant setting",
 ) -> ComparisonReport:
-    """Compare a capture's firmware angles with the seeded replica and with ``estimators`` (registry names run
-    from power-up; missing ones reported unavailable). ``settings``: the replica's (default: the status frames', else
-    the firmware's); ``variant``: its ST release (default: recognised from the data). ValueError: no attitude row."""
+    """Compare a capture's firmware angles with the seeded replica (``settings`` default: the status frames', else the
+    firmware's; ``variant`` default: recognised) and with ``estimators`` run from power-up (missing: unavailable)."""
     a = tel.attitude
     n = len(a)
     if n == 0:
@@ -78,8 +74,7 @@ def compare_capture(
     if tel.source.get("symbols"):  # the emulator's reads by symbol: the attitude itself, or a check of the frames
         notes.append(tel.source["symbols"])
     notes.extend(link_notes(tel))
-    nan_x = int(np.count_nonzero(~np.isfinite(fw[0])))
-    nan_y = int(np.count_nonzero(~np.isfinite(fw[1])))
+    nan_x, nan_y = (int(np.count_nonzero(~np.isfinite(angle))) for angle in fw)
     values_bad = values_bad_report(tel)
     if nan_x or nan_y:
         why = (
@@ -172,8 +167,7 @@ def _inputs_absent_note(has_acc: bool, has_gyro: bool) -> str:
 
 
 def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] | None:
-    """Inclination RMSE (deg, movement steps) of the firmware, the replica and each estimator against the truth
-    a capture keeps (chunks T, matched by AHRS step), or None; scored as ``steval evaluate`` scores them."""
+    """Inclination RMSE (deg, movement steps) of the firmware, replica and estimators against kept truth, or None."""
     src = tel.source or {}
     if src.get("kind") != "stv" or not src.get("path"):
         return None
@@ -189,20 +183,16 @@ def truth_section(tel, rep, prow, estimates: dict[str, Any]) -> dict[str, Any] |
     cov: dict[str, Coverage] = {}
     scored = movement & np.isfinite(q_true).all(axis=1)
     t_fw = np.asarray(a.t_fw_s, np.float64)
-
-    def covered(ok) -> Coverage:
-        return coverage_of(ok, scored, a.step, t_fw)
-
-    _, out["firmware"] = score_euler(a.thx_rad, a.thy_rad, q_true, movement)
-    cov["firmware"] = covered(np.isfinite(a.thx_rad) & np.isfinite(a.thy_rad))
+    eulers = [("firmware", a.thx_rad, a.thy_rad)]
     if rep is not None and prow is not None:
-        thx, thy = on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)
-        _, out[REPLICA_TRACE] = score_euler(thx, thy, q_true, movement)
-        cov[REPLICA_TRACE] = covered(np.isfinite(thx) & np.isfinite(thy))
+        eulers.append((REPLICA_TRACE, on_rows(len(a.step), prow, rep.thx_rad), on_rows(len(a.step), prow, rep.thy_rad)))
+    for name, thx, thy in eulers:
+        _, out[name] = score_euler(thx, thy, q_true, movement)
+        cov[name] = coverage_of(np.isfinite(thx) & np.isfinite(thy), scored, a.step, t_fw)
     for name, est in estimates.items():
         q = np.asarray(est.q_wxyz, dtype=np.float64)
         out[name] = broad.rmse_deg(broad.inclination_error_rad(q, q_true), movement)
-        cov[name] = covered(np.isfinite(q).all(axis=1))
+        cov[name] = coverage_of(np.isfinite(q).all(axis=1), scored, a.step, t_fw)
     return {
         "source": "capture chunks T",
         "steps_matched": int(hit.sum()),

@@ -1,10 +1,7 @@
-"""The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): steps that match bit for bit, the
-first that differs and *why*: the replica is re-run from the same seed with other settings (release variant, KI,
-correction, kp, dt, MIN_THR and pairs of them) and the one that reproduces the firmware is named.
-
-A firmware whose own filter diverged (:func:`find_divergence`: q off the unit sphere or non-finite) is named with
-the step and its inputs; when the replica stayed finite on them, no setting is searched: the firmware's ``ahrs.c``
-differs."""
+"""The bit-exact ST-Mahony replica against the firmware (:func:`compare_replica`): the steps that match bit for bit,
+the first that differs and *why*: the replica re-run from the same seed with other settings (release, KI, correction,
+kp, dt, MIN_THR and pairs of them) names the one that reproduces the firmware. A firmware whose own filter diverged
+(:func:`find_divergence`) is named with the step and its inputs; replica finite there: its ``ahrs.c`` differs."""
 
 from __future__ import annotations
 
@@ -30,6 +27,7 @@ DIAGNOSIS_WINDOW_ROWS = 600
 
 
 _DT_REAL_S = float(np.float32(1.0 / 161.5))
+_KP_DEFAULTS = (C.KP_GROUND, C.KP_FLIGHT)
 _FLOAT_SETTINGS = ("kp_ground", "kp_flight", "ki", "dt_s")
 
 
@@ -48,8 +46,7 @@ def _pick(table, rows: np.ndarray, keys: tuple[str, ...]) -> SimpleNamespace:
 
 
 def filter_settings_report(tel) -> dict[str, Any] | None:
-    """The filter settings the (binary) status frames report, compared with the 170120 defaults; None without
-    binary status frames. Text-mode status lines carry only KI and the flags (``ki`` and ``flags``)."""
+    """The filter settings the status frames report against the 170120 defaults (text mode: ki, flags), or None."""
     s = tel.status
     ex = np.asarray(s.exact, bool) if len(s) else np.zeros(0, bool)
     if len(s) and not ex.any():
@@ -71,8 +68,7 @@ def filter_settings_report(tel) -> dict[str, Any] | None:
     rows = np.flatnonzero(ex)
     picked = _pick(s, rows, ("kp_ground", "kp_flight", "ki", "dt_s", "min_thr", "flags"))
     settings = [MahonySettings.of_status(picked, j) for j in range(rows.size)]
-    last = settings[-1]
-    d = _settings_dict(last)
+    d = _settings_dict(settings[-1])
     defaults = _settings_dict(MahonySettings())
     changes = sum(1 for x, y in zip(settings[:-1], settings[1:]) if not _same_settings(x, y))
     return {
@@ -171,13 +167,7 @@ def _variants(base: MahonySettings) -> list[tuple[dict[str, Any], MahonySettings
         add({"variant": variant}, replace(base, variant=variant))
     for dt in (_DT_REAL_S, float(np.float32(C.AHRS_PERIOD_S)), C.DT_S):
         add({"dt_s": dt}, replace(base, dt_s=dt))
-    kps = [
-        (base.kp_flight, base.kp_flight),
-        (base.kp_ground, base.kp_ground),
-        (base.kp_flight, base.kp_ground),
-        (C.KP_GROUND, C.KP_FLIGHT),
-    ]
-    for kg, kf in kps:
+    for kg, kf in ((base.kp_flight,) * 2, (base.kp_ground,) * 2, (base.kp_flight, base.kp_ground), _KP_DEFAULTS):
         add({"kp": (kg, kf)}, replace(base, kp_ground=kg, kp_flight=kf))
     add({"min_thr": C.MIN_THR}, replace(base, min_thr=C.MIN_THR))
     return out
@@ -197,13 +187,9 @@ def _combine(a: tuple[dict, MahonySettings], b: tuple[dict, MahonySettings], bas
 
 def _window_exact(view, seed_state: MahonyState, settings: MahonySettings, r0: int, r1: int) -> int:
     """Rows from ``r0`` (the seed row) that the replica reproduces bit for bit in a row, up to ``r1`` (exclusive)."""
-    a = view.attitude
-    q, thx, thy, _ = mahony_run(a.acc_mg[r0:r1], a.gyro_mdps[r0:r1], a.thr[r0:r1], settings=settings, state=seed_state)
-    ok = (
-        bits_equal(q, a.q_wxyz[r0:r1]).all(axis=1)
-        & bits_equal(thx, a.thx_rad[r0:r1])
-        & bits_equal(thy, a.thy_rad[r0:r1])
-    )
+    a, rows = view.attitude, slice(r0, r1)
+    q, thx, thy, _ = mahony_run(a.acc_mg[rows], a.gyro_mdps[rows], a.thr[rows], settings=settings, state=seed_state)
+    ok = bits_equal(q, a.q_wxyz[rows]).all(axis=1) & bits_equal(thx, a.thx_rad[rows]) & bits_equal(thy, a.thy_rad[rows])
     bad = np.flatnonzero(~ok)
     return int(bad[0]) if bad.size else r1 - r0
 
@@ -257,8 +243,7 @@ def _search_settings(view, state: MahonyState, base: MahonySettings, r0: int, r1
     for ch, s in candidates:
         if _window_exact(view, state, s, r0, r1) == r1 - r0:
             return ch, s
-    singles = [c for c in candidates if "defaults" not in c[0]]
-    for x, y in combinations(singles, 2):
+    for x, y in combinations(candidates, 2):  # _combine skips "defaults" and pairs touching one field
         c = _combine(x, y, base)
         if c is not None and _window_exact(view, state, c[1], r0, r1) == r1 - r0:
             return c
@@ -271,12 +256,8 @@ def _explained(view, ch: dict, s: MahonySettings, base: MahonySettings, settings
     lines = [f"the capture matches {_describe_variant(ch, base)}"]
     flags = _cli_flags(s, _status_base(view) or MahonySettings())
     how = f" (settings {flags})" if flags else ""
-    if full.all_exact:
-        lines.append(f"with these settings the replica is bit-exact on all {full.n_seeded} seeded steps{how}")
-    else:
-        lines.append(
-            f"with these settings the replica is bit-exact on {full.n_bit_exact} of {full.n_seeded} seeded steps{how}"
-        )
+    exact = f"all {full.n_seeded}" if full.all_exact else f"{full.n_bit_exact} of {full.n_seeded}"
+    lines.append(f"with these settings the replica is bit-exact on {exact} seeded steps{how}")
     variant = {k: (list(v) if isinstance(v, tuple) else v) for k, v in ch.items()}
     if settings_override is not None and _same_settings(s, _status_base(view)):
         lines.append("these are the settings the status frames report: the settings override is wrong")
@@ -287,15 +268,13 @@ def _restart_lines(view, seed, seg_start: int) -> list[str]:
     """A mismatch right after the replica restarted from a status snapshot: where, and whether the snapshot fits."""
     steps = view.attitude.step
     snap = int(view.status.step[seed.status_row])
-    if seg_start > 0:
-        lines = [
-            f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
-            f"{int(steps[seg_start])}); the replica restarted there from the status snapshot of step "
-            f"{snap}, which does not reproduce the next step"
-        ]
-    else:
-        lines = [f"the replica started from the status snapshot of step {snap}, which does not reproduce the next step"]
-    return lines + (
+    where = (
+        f"frames were dropped before that point (seq gap at step {int(steps[seg_start - 1])}→"
+        f"{int(steps[seg_start])}); the replica restarted there"
+        if seg_start > 0
+        else "the replica started"
+    )
+    return [f"{where} from the status snapshot of step {snap}, which does not reproduce the next step"] + (
         _snapshot_check(view, seed.status_row)
         or ["the snapshot and the attitude frames may not belong together (firmware-side race, or a damaged frame)"]
     )
@@ -345,26 +324,23 @@ def _snapshot_check(view, j: int) -> list[str]:
 
 def _status_base(view) -> MahonySettings | None:
     s = view.status
-    if s.step.size == 0:
-        return None
-    j = int(np.argmin(s.step))
-    return MahonySettings.of_status(s, j)
+    return MahonySettings.of_status(s, int(np.argmin(s.step))) if s.step.size else None
 
 
 def _vec(v, fmt: str = ".6g") -> str:
     return "(" + ", ".join(format(float(x), fmt) for x in np.asarray(v).reshape(-1)) + ")"
 
 
-def _norm(q) -> float:
+def q_norm(q) -> float:
+    """|q| in float64 (inf or NaN for a non-finite q, without a warning)."""
     q = np.asarray(q, dtype=np.float64)
     with np.errstate(over="ignore", invalid="ignore"):
         return float(np.sqrt((q * q).sum()))
 
 
 def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[str, Any] | None:
-    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none):
-    its step, time, q and |q|, the inputs of that step and the one before, what the replica did (``rep``: replayed over
-    ``rows``) and the sentences saying so."""
+    """The first binary row where the firmware's q leaves the unit sphere or goes non-finite (None: none): its step,
+    q, the inputs of that step and the one before, what the replica (``rep``) did, and the sentences saying so."""
     a = view.attitude
     off = q_off_sphere(a.q_wxyz)
     if not off.any():
@@ -390,13 +366,11 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         replica_q = [json_number(x) for x in rep.q_wxyz[k]]
         seeded_after = np.flatnonzero(rep.seeded[k:]) + k
         p_off = q_off_sphere(rep.q_wxyz[seeded_after])
-        if p_off.any():
-            replica_state, replica_div = "diverged", int(a.step[seeded_after[int(np.argmax(p_off))]])
-        else:
-            replica_state = "finite"
+        replica_state = "diverged" if p_off.any() else "finite"
+        replica_div = int(a.step[seeded_after[int(np.argmax(p_off))]]) if p_off.any() else None
     nonfinite = not np.isfinite(q).all()
     what = "went non-finite" if nonfinite else "left the unit sphere"
-    how = "" if nonfinite else f", |q| = {_norm(q):.6g}"
+    how = "" if nonfinite else f", |q| = {q_norm(q):.6g}"
     text = [
         f"the firmware's own filter {what} at step {step} (t = {t_fw:.3f} s): q = {_vec(q)}{how} (the "
         f"release keeps |q| ≈ 0.9983)"
@@ -415,7 +389,7 @@ def find_divergence(view, rows: np.ndarray, rep: FirmwareReplay | None) -> dict[
         "step": step,
         "t_fw_s": json_number(t_fw),
         "q_wxyz": [json_number(x) for x in q],
-        "q_norm": json_number(_norm(q)),
+        "q_norm": json_number(q_norm(q)),
         "first_nonfinite_step": first_nan,
         "inputs": inputs,
         "replica": replica_state,
@@ -430,7 +404,7 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
     if state == "finite":
         return (
             f"the bit-exact replica stayed finite on the same inputs (q = {_vec(q)}, |q| = "
-            f"{_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
+            f"{q_norm(q):.6g} at step {step}, on the unit sphere to the end): the firmware's "
             "ahrs_fusion_ag is not release 170120's; check the quaternion update and the normalisation in "
             "ahrs.c (no setting of the release's filter takes its q off the unit sphere on inputs the replica "
             "handles, so none was searched)"
@@ -449,9 +423,8 @@ def _replica_divergence_line(state: str, q, diverged_step: int | None, step: int
 def compare_replica(
     tel, settings: MahonySettings | None = None, *, variant: str | None = None, variant_source: str = "variant setting"
 ) -> tuple[ReplicaComparison | None, FirmwareReplay | None, np.ndarray | None]:
-    """The seeded replica against the firmware's binary rows: (report, its replay, those rows' indices into
-    ``tel.attitude``), or (None, None, None) without binary rows. ``variant`` forces a release (named by
-    ``variant_source``); default: the one bit-exact on the most steps."""
+    """(report, replay, binary rows) of the seeded replica against the firmware, (None, None, None) without binary
+    rows; ``variant`` forces a release, else the one bit-exact on the most steps."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None, None, None
@@ -525,8 +498,7 @@ def _first_mismatch(tel, view, rows, rep: FirmwareReplay, settings, divergence):
 
 
 def recognise_release(tel, *, variant: str | None = None, source: str = "variant setting") -> dict[str, Any] | None:
-    """The ST release whose filter reproduces the binary rows (``variant`` forces one, named by ``source``),
-    its bit-exact steps and sentence; None without binary rows. No settings are searched."""
+    """The ST release whose filter reproduces the binary rows (``variant`` forces one), or None without binary rows."""
     view, rows = _binary_view(tel)
     if rows.size == 0:
         return None
@@ -551,8 +523,7 @@ def recognise_release(tel, *, variant: str | None = None, source: str = "variant
 
 
 def capture_variant_hint(tel) -> tuple[str, str] | None:
-    """The release an emulated capture's header names (``extra.filter``: from the firmware ELF's code or the
-    session's ``--variant``), as (variant, who named it); None without one."""
+    """(variant, who named it) from an emulated capture's header (``extra.filter``), or None."""
     extra = ((getattr(tel, "source", None) or {}).get("header") or {}).get("extra") or {}
     f = extra.get("filter")
     if not isinstance(f, dict) or f.get("variant") not in VARIANTS:

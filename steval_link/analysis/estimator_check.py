@@ -1,13 +1,10 @@
 """``steval estimator check``: an estimator's interface checks, then its scores next to ST-Mahony and VQF.
 
-Each check runs on inputs built here in the firmware's units (acc mg, gyro mdps, axes x right, y forward, z up,
-161.5 Hz steps, light noise from a fixed seed): shapes and a unit quaternion; level at rest; the pitch sign (20° nose
-up → thx ≈ +20°) and roll sign (thy ≈ +20°); a +20 dps turn about x (gyro units and sign); NaN, free fall and
-saturated inputs (no exception, finite at the end); determinism across instances and ``reset()``; and speed (live
-needs twice the stream's 161.5 steps/s).
-
-Scores: the RMS tilt difference (deg) from the firmware's attitude and from accel-only tilt on the bundled
-captures; the inclination RMSE against ground truth on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
+The checks run on inputs in the firmware's units (acc mg, gyro mdps, x right, y forward, z up, 161.5 Hz, seeded
+noise): shapes, level at rest, the pitch sign (20° nose up → thx ≈ +20°) and roll sign, a +20 dps turn about x, NaN,
+free fall and saturation, determinism across instances and ``reset()``, and speed (live needs 2 × 161.5 steps/s).
+Scores: RMS tilt difference (deg) from the firmware and from accel-only tilt on the bundled captures, and the
+inclination RMSE on BROAD trials (:mod:`~steval_link.analysis.evaluate`)."""
 
 from __future__ import annotations
 
@@ -74,14 +71,11 @@ class CheckReport:
             "steps_per_s": ev.rounded(self.steps_per_s),
             "live_min_steps_per_s": round(LIVE_MIN_STEPS_PER_S, 1),
             "captures": self.captures,
+            "broad": ev.summary(self.broad) if self.broad else None,
         }
-        d["broad"] = ev.summary(self.broad) if self.broad else None
         if self.broad_note:
             d["broad_note"] = self.broad_note
         return d
-
-
-# ---- inputs --------------------------------------------------------------------------------------------------------
 
 
 def _gravity_mg(thx_rad, thy_rad) -> np.ndarray:
@@ -130,16 +124,12 @@ def _invalid_input(seed: int):
     return acc, gyro
 
 
-# ---- the checks ----------------------------------------------------------------------------------------------------
-
-
 def _last_deg(est) -> tuple[float, float]:
     return math.degrees(float(est.thx_rad[-1])), math.degrees(float(est.thy_rad[-1]))
 
 
 def interface_checks(name, demo_inputs=None) -> tuple[list[Check], float, str]:
-    """Every interface check of the estimator ``name`` names: (checks, steps/s, the first failure's trimmed
-    traceback or "")."""
+    """Every interface check of estimator ``name``: (checks, steps/s, the first failure's trimmed traceback or "")."""
     rate = [math.nan]
 
     def speed():
@@ -175,13 +165,11 @@ def _attempt(check_name: str, fn) -> tuple[Check, str]:
 
 
 def _check_shapes(name):
-    est = registry.create(name)
     acc, gyro = _held(0.0, 0.0, 0.5, 1)
-    q1 = np.asarray(est.step(acc[0], gyro[0], 0), dtype=np.float64)
+    q1 = np.asarray(registry.create(name).step(acc[0], gyro[0], 0), dtype=np.float64)
     if q1.shape != (4,):
         return False, f"step() returned shape {q1.shape}, not (4,)"
-    est = registry.create(name)
-    res = est.run(acc, gyro, np.zeros(len(acc), np.int64))
+    res = registry.create(name).run(acc, gyro, np.zeros(len(acc), np.int64))
     q = np.asarray(res.q_wxyz, dtype=np.float64)
     if q.shape != (len(acc), 4) or np.shape(res.valid) != (len(acc),):
         return False, f"run() of {len(acc)} rows gave q of shape {q.shape}, valid {np.shape(res.valid)}"
@@ -242,8 +230,7 @@ def _check_invalid(name):
 def _check_determinism(name):
     acc, gyro = _held(5.0, -8.0, 3.0, 6)
     (acc2, gyro2), _ = _turn(6)
-    acc = np.concatenate([acc, acc2])
-    gyro = np.concatenate([gyro, gyro2])
+    acc, gyro = np.concatenate([acc, acc2]), np.concatenate([gyro, gyro2])
     a = registry.create(name).run(acc, gyro)
     b = registry.create(name).run(acc, gyro)
     est = registry.create(name)
@@ -274,12 +261,8 @@ def _check_speed(name, demo_inputs):
 
 
 def _demo_inputs():
-    tel = telemetry_of_recording(read_recording(demo_capture_path()))
-    a = tel.attitude
+    a = telemetry_of_recording(read_recording(demo_capture_path())).attitude
     return a.acc_mg, a.gyro_mdps, a.thr
-
-
-# ---- scores --------------------------------------------------------------------------------------------------------
 
 
 #: the recordings the repository ships (``recordings/make_recordings.sh`` makes them); a user's own captures in the
@@ -303,8 +286,7 @@ def _tilt_rms_deg(q_a, q_b) -> float:
 
 
 def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
-    """Per capture with binary attitude frames: RMS tilt difference (deg) of each estimator from the firmware's
-    attitude and from accelerometer-only tilt. ``names``: display name → what :func:`registry.create` takes."""
+    """Per capture with binary frames: RMS tilt difference (deg) of each of ``names`` from firmware and accel tilt."""
     out = []
     for p in bundled_captures() if paths is None else paths:
         src = read_recording(p)
@@ -315,9 +297,7 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
         rows = np.asarray(a.exact, bool)
         if rows.sum() < C.AHRS_RATE_HZ:  # text-mode or almost empty: no firmware quaternion to compare with
             continue
-        acc = np.asarray(a.acc_mg)[rows]
-        gyro = np.asarray(a.gyro_mdps)[rows]
-        thr = np.asarray(a.thr)[rows]
+        acc, gyro, thr = (np.asarray(v)[rows] for v in (a.acc_mg, a.gyro_mdps, a.thr))
         q_fw = np.asarray(a.q_wxyz, np.float64)[rows]
         tx, ty, tv = accel_tilt(acc)
         q_acc = tilt_quaternion(tx, ty)
@@ -334,8 +314,7 @@ def capture_scores(names: list, paths: list[Path] | None = None) -> list[dict]:
 
 
 def broad_scores(reference: str, paths: list[Path], progress=None) -> list:
-    """Inclination RMSE against ground truth on each BROAD trial (the STEVAL pipeline, 161.5 Hz): the estimator
-    ``reference`` names next to :data:`BROAD_COMPANIONS` (those installed)."""
+    """Inclination RMSE on each BROAD trial (STEVAL pipeline) of ``reference`` and :data:`BROAD_COMPANIONS`."""
     only = [reference] + [c for c in BROAD_COMPANIONS if c != "vqf" or registry.is_available("vqf")]
     results = []
     for p in paths:
@@ -348,8 +327,7 @@ def broad_scores(reference: str, paths: list[Path], progress=None) -> list:
 def run_check(
     reference: str, *, broad_paths: list[Path] | None = None, captures: bool = True, progress=None
 ) -> CheckReport:
-    """The whole check of the estimator ``reference`` names (see the module doc). ``broad_paths``: trials to
-    score on (None or empty: none). ``progress(fraction, stage)`` is told where it is."""
+    """The whole check of the estimator ``reference`` names (see the module doc), scored on ``broad_paths``."""
     progress = progress or (lambda f, s: None)
     sel = registry.resolve(reference)
     try:
@@ -362,8 +340,7 @@ def run_check(
     if not report.ok and any(not c.ok and "failed in" in c.detail for c in report.checks):
         report.broad_note = "not scored: the estimator raised in the checks"
         return report
-    companions = [(c, c) for c in COMPANIONS if registry.is_available(c)]
-    names = [(str(sel), sel)] + companions
+    names = [(str(sel), sel)] + [(c, c) for c in COMPANIONS if registry.is_available(c)]
     if captures:
         progress(0.3, "bundled captures")
         report.captures = capture_scores(names)
@@ -382,23 +359,18 @@ def run_check(
 def format_check(report: CheckReport) -> list[str]:
     """The report as plain lines (a table per part)."""
     lines = [f"{report.label}: interface checks"]
-    w = max(len(c.name) for c in report.checks) if report.checks else 5
-    for c in report.checks:
-        lines.append(f"  {'PASS' if c.ok else 'FAIL'}  {c.name.ljust(w)}  {c.detail}")
+    w = max((len(c.name) for c in report.checks), default=5)
+    lines += [f"  {'PASS' if c.ok else 'FAIL'}  {c.name.ljust(w)}  {c.detail}" for c in report.checks]
     if report.captures:
         labels = list(report.captures[0]["vs_firmware_deg"])
         width = [max(9, len(k)) for k in labels]
         w0 = max(len("capture"), *(len(c["capture"]) for c in report.captures))
+        heads = [k.rjust(x) for k, x in zip(labels, width)]
         lines += [
             "",
             "bundled captures: RMS tilt difference in degrees, from the firmware's attitude | from "
             "accelerometer-only tilt",
-            "  ".join(
-                ["capture".ljust(w0), "frames".rjust(7)]
-                + [k.rjust(x) for k, x in zip(labels, width)]
-                + ["|"]
-                + [k.rjust(x) for k, x in zip(labels, width)]
-            ),
+            "  ".join(["capture".ljust(w0), "frames".rjust(7)] + heads + ["|"] + heads),
         ]
         for c in report.captures:
             fw, acc = (

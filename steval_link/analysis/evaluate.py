@@ -1,12 +1,9 @@
-"""Accuracy against ground truth: every estimator on BROAD trials (through the STEVAL sensor pipeline model, or at
-the trial's own rate) or on a capture with a ground-truth sidecar; inclination RMSE per trial and estimator.
+"""Accuracy against ground truth: every estimator (and a firmware ELF, :mod:`~steval_link.analysis.firmware_eval`) on
+BROAD trials, through the STEVAL sensor pipeline model or at the trial's own rate, or on a capture with ground truth.
 
-Metric: ``q_err = q_est ⊗ q_true⁻¹`` (earth frame), inclination error ``2·acos(√(w² + z²))``, RMSE in degrees over
-the ``movement`` samples, ignoring NaN (occluded ground truth). A firmware ELF (``--firmware``) is one more column
-(:mod:`steval_link.analysis.firmware_eval`).
-
-A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int (``tel.attitude.step``), ``quat`` (M, 4) float wxyz
-body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all True)."""
+Metric: inclination error ``2·acos(√(w² + z²))`` of ``q_est ⊗ q_true⁻¹`` (earth frame), RMSE in degrees over the
+``movement`` samples, NaN (occluded truth) ignored. A capture's sidecar ``<capture>.truth.npz``: ``step`` (M,) int,
+``quat`` (M, 4) wxyz body → earth (x right, y forward, z up), optionally ``movement`` (M,) bool (default: all)."""
 
 from __future__ import annotations
 
@@ -19,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from steval_link.analysis.coverage import Coverage, coverage_of, percent
 from steval_link.analysis.firmware_eval import FirmwareResult, cut_trial, firmware_labels, run_firmware
 from steval_link.analysis.plots import require_matplotlib, save_figure
-from steval_link.analysis.report import json_number, truth_on_steps
+from steval_link.analysis.report import Coverage, coverage_of, json_number, percent, truth_on_steps
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.emulation import broad
 from steval_link.emulation.elf import Elf
@@ -50,11 +46,13 @@ class EstimatorSpec:
     thr: int = 0
 
 
-def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | None = None) -> list[EstimatorSpec]:
-    """The estimators of ``steval evaluate`` for inputs at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450:
-    kp 0.4 / thr 0: kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``,
-    ``mekf`` and ``vqf`` (when installed). ``only``: labels, references or selected objects, in order
-    (``st-mahony`` selects both Mahony runs); UserError for an unknown one, a label taken twice or none."""
+def default_specs(
+    rate_hz: float, *, own_rate: bool = False, only: Sequence[str] | str | None = None
+) -> list[EstimatorSpec]:
+    """The estimators of ``steval evaluate`` at ``rate_hz``: ``st-mahony-flight``/``-ground`` (thr 450: kp 0.4 / thr 0:
+    kp 10; with ``own_rate`` dt = 1/rate and mekf without latency compensation), ``accel``, ``ekf3``, ``mekf``, ``vqf``
+    (when installed). ``only``: labels, references or selected objects, or one comma-separated text (``st-mahony``:
+    both Mahony runs)."""
     mahony = {"dt_s": 1.0 / rate_hz} if own_rate else {}
     specs = {
         "st-mahony-flight": EstimatorSpec("st-mahony-flight", "st-mahony", mahony, THR_FLIGHT),
@@ -67,7 +65,7 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
     if only is None:
         return [s for k, s in specs.items() if k != "vqf" or registry.is_available("vqf")]
     out: list[EstimatorSpec] = []
-    for item in only:
+    for item in split_list(only) if isinstance(only, str) else list(only):
         if not isinstance(item, str) or isinstance(item, Selected):  # an object chosen already: run as it is
             chosen = [EstimatorSpec(str(item), item, {})]
         elif not item.strip():
@@ -99,9 +97,8 @@ def default_specs(rate_hz: float, *, own_rate: bool = False, only: Sequence[str]
 
 @dataclass
 class TrialResult:
-    """The outcome of one trial (or capture): its name, step rate (Hz), step times ``t_s`` (M,) and ``movement``
-    (M,) bool; per label the inclination RMSE (deg), error (M,) rad, speed (steps/s), ``err_t_s`` (a firmware's own step
-    times, s) and :class:`~steval_link.analysis.coverage.Coverage`; the firmware runs (``--firmware``)."""
+    """One trial (or capture): step rate (Hz), times ``t_s`` (M,), ``movement`` (M,); per label the inclination RMSE
+    (deg), error (M,) rad, speed (steps/s), a firmware's own step times ``err_t_s`` and its coverage; firmware runs."""
 
     name: str
     rate_hz: float
@@ -166,8 +163,7 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
     fws = [fw for r in results for fw in r.firmware]
     if not fws:
         return []
-    w0 = max(len(fw.trial) for fw in fws)
-    w1 = max(len(fw.label) for fw in fws)
+    w0, w1 = max(len(fw.trial) for fw in fws), max(len(fw.label) for fw in fws)
     out = [
         "firmware on the emulated board: inclination RMSE (deg) of its own thx/thy; instructions per AHRS step "
         "(emulator counts, interrupts excluded); the bit-exact ST-Mahony replica on the firmware's own inputs"
@@ -181,10 +177,8 @@ def firmware_lines(results: Sequence[TrialResult]) -> list[str]:
             else f"replica {_fmt(fw.replica_rmse_deg)}, bit-exact {fw.replica_bit_exact}/{fw.replica_steps} steps"
             + ("" if fw.settings is None else f" with {fw.settings.variant}'s filter")
         )
-        notes = list(fw.notes)
         cov = fw.coverage
-        if not cov.complete:
-            notes.insert(0, cov.sentence())
+        notes = ([] if cov.complete else [cov.sentence()]) + list(fw.notes)
         note = f"  [{'; '.join(notes)}]" if notes else ""
         score = cov.cell(_fmt(fw.rmse_deg))
         out.append(
@@ -260,9 +254,7 @@ def _load_sidecar(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def evaluate_capture(
     path, specs: Sequence[EstimatorSpec] | None = None, *, truth=None, progress: Progress | None = None
 ) -> TrialResult:
-    """Evaluate estimators on a capture's AHRS inputs against its sidecar, or the truth it keeps (chunks T of
-    ``steval emulate --broad``); the firmware's own ``q`` of binary frames is scored as ``firmware``."""
-
+    """Score estimators on a capture against its sidecar or kept truth; binary frames' ``q`` as ``firmware``."""
     p = Path(path)
     src = read_recording(p)  # missing, unreadable, empty: its own sentence
     try:
@@ -279,10 +271,8 @@ def evaluate_capture(
     att = tel.attitude
     if len(att.step) == 0:
         raise UserError(f"{p}: no attitude frames")
-    if kept is not None:  # an emulated BROAD run keeps the truth it was fed (chunks T)
-        step, quat, mov = kept.step, kept.q_wxyz, kept.movement
-    else:
-        step, quat, mov = _load_sidecar(side)
+    # an emulated BROAD run keeps the truth it was fed (chunks T)
+    step, quat, mov = (kept.step, kept.q_wxyz, kept.movement) if kept is not None else _load_sidecar(side)
     q_true, movement, _ = truth_on_steps(step, quat, mov, att.step)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
     dt = np.diff(t)
@@ -290,8 +280,7 @@ def evaluate_capture(
     view = broad.SteValView(
         np.asarray(att.acc_mg, np.float32), np.asarray(att.gyro_mdps, np.float32), t, q_true, movement, rate
     )
-    if specs is None:
-        specs = default_specs(AHRS_RATE_HZ)
+    specs = default_specs(AHRS_RATE_HZ) if specs is None else specs
     res = evaluate_view(view, specs, p.stem, progress, steps=np.asarray(att.step))
     if np.asarray(att.exact).any():  # binary frames carry the firmware's quaternion (text rows: NaN)
         res.score("firmware", att.q_wxyz, view, att.step, float("nan"))
@@ -304,9 +293,8 @@ def incomplete_labels(results: Sequence[TrialResult]) -> list[str]:
 
 
 def summary(results: Sequence[TrialResult], number: Callable[[float | None], float | None] | None = None) -> dict:
-    """JSON-ready report: per-trial RMSE, coverage and speed, the mean over all trials and over BROAD 02/07/15/24;
-    an incomplete estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default:
-    4 decimals)."""
+    """JSON-ready report: per-trial RMSE, coverage and speed, the means (all trials, BROAD 02/07/15/24); an incomplete
+    estimator has no mean and is listed under ``incomplete``. ``number`` writes each figure (default: 4 decimals)."""
     rnd = number or rounded
     labels = list(dict.fromkeys(k for r in results for k in r.rmse_deg))
     incomplete = incomplete_labels(results)
@@ -343,8 +331,8 @@ def summary(results: Sequence[TrialResult], number: Callable[[float | None], flo
     if fws:
         out["firmware"] = fws
         out["firmware_metric"] = (
-            "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own "
-            "output (the replica's the same way), over movement steps, degrees"
+            "inclination RMSE of quaternion_from_euler(thx, thy, 0) of the firmware's own output (the replica's the "
+            "same way), over movement steps, degrees"
         )
     keys = {r.name: r.name.split("_", 1)[0] for r in results}  # "07" of "07_undisturbed_fast_rotation_B"
     sel = [r for r in results if keys[r.name] in MEAN_TRIALS]
@@ -371,18 +359,11 @@ def table_rows(results: Sequence[TrialResult]) -> tuple[list[str], list[list[str
     header = ["trial", *labels]
     rows: list[list[str]] = []
     for r, t in zip(results, s["trials"]):
-        cells = []
-        for k in labels:
-            v = t["rmse_deg"][k]
-            text = "—" if v is None else f"{v:.3f}"
-            cov = r.coverage.get(k)
-            cells.append(text if cov is None else cov.cell(text))
-        rows.append([t["trial"], *cells])
+        cells = [(_fmt(t["rmse_deg"][k]), r.coverage.get(k)) for k in labels]
+        rows.append([t["trial"], *(text if cov is None else cov.cell(text) for text, cov in cells)])
 
     def mean_row(name: str, values: dict) -> list[str]:
-        return [name] + [
-            "incomplete" if k in s["incomplete"] else ("—" if values[k] is None else f"{values[k]:.3f}") for k in labels
-        ]
+        return [name] + ["incomplete" if k in s["incomplete"] else _fmt(values[k]) for k in labels]
 
     if len(results) > 1:
         rows.append(mean_row("mean", s["mean_rmse_deg"]))
@@ -397,17 +378,12 @@ def coverage_lines(results: Sequence[TrialResult]) -> list[str]:
 
 
 def format_table(results: Sequence[TrialResult]) -> str:
-    """A plain-text table: one row per trial, one column per estimator (inclination RMSE, °, marked with its
-    coverage when incomplete), mean rows, then what each incomplete score misses and the firmware lines."""
+    """A plain-text table of :func:`table_rows`, then what each incomplete score misses and the firmware lines."""
     header, rows = table_rows(results)
     w0 = max([len("trial")] + [len(row[0]) for row in rows])
     widths = [max([len(header[j]), 7] + [len(row[j]) for row in rows]) for j in range(1, len(header))]
-    lines = [
-        "inclination RMSE (deg) over movement samples",
-        "  ".join([header[0].ljust(w0)] + [k.rjust(w) for k, w in zip(header[1:], widths)]),
-    ]
-    for row in rows:
-        lines.append("  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]))
+    lines = ["inclination RMSE (deg) over movement samples"]
+    lines += ["  ".join([row[0].ljust(w0)] + [c.rjust(w) for c, w in zip(row[1:], widths)]) for row in [header, *rows]]
     cov = coverage_lines(results)
     if cov:
         lines += ["", "incomplete scores (no mean, not ranked):"] + [f"  {c}" for c in cov]
@@ -422,17 +398,14 @@ def write_csv(results: Sequence[TrialResult], path) -> Path:
     header, rows = table_rows(results)
     out = Path(path)
     with out.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
+        csv.writer(fh).writerows([header, *rows])
     return out
 
 
 def write_markdown(results: Sequence[TrialResult], path) -> Path:
     """The table as a Markdown table, with the coverage lines under it."""
     header, rows = table_rows(results)
-    lines = ["inclination RMSE (deg) over movement samples", ""]
-    lines.append("| " + " | ".join(header) + " |")
+    lines = ["inclination RMSE (deg) over movement samples", "", "| " + " | ".join(header) + " |"]
     lines.append("|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|")
     lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
     cov = coverage_lines(results)
@@ -449,8 +422,7 @@ def plot_evaluation(results: Sequence[TrialResult], out_png, *, detail: int = 0)
 
 
 def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
-    """Bars of RMSE per estimator per trial (an incomplete score hollow and hatched, its coverage on it)
-    and the inclination error over time of trial ``detail`` (a dashed line where an estimate diverged)."""
+    """Bars of RMSE per estimator and trial (incomplete ones hatched) and trial ``detail``'s error over time."""
     plt = require_matplotlib()
     s = summary(results)
     labels = s["estimators"]
@@ -473,8 +445,7 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
                 h = bar.get_height() if np.isfinite(bar.get_height()) else 0.0
                 ax0.annotate(percent(f), (bar.get_x() + bar.get_width() / 2, h), ha="center", va="bottom", fontsize=7)
     ax0.set_xticks(x, [r.name for r in results], rotation=15, ha="right", fontsize=8)
-    ax0.set_ylabel("inclination RMSE (deg)")
-    ax0.set_title("Inclination error against ground truth (movement samples)")
+    ax0.set(ylabel="inclination RMSE (deg)", title="Inclination error against ground truth (movement samples)")
     ax0.legend(fontsize=8, ncol=3)
     ax0.grid(axis="y", alpha=0.3)
     r = results[min(max(detail, 0), n - 1)]
@@ -485,12 +456,10 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
         (line,) = ax1.plot(r.err_t_s.get(k, r.t_s), e, lw=0.7, label=f"{k} ({_fmt(r.rmse_deg[k])}°{mark})")
         if cov is not None and cov.diverged_at_s is not None:
             ax1.axvline(cov.diverged_at_s, color=line.get_color(), ls="--", lw=0.8)
-    ax1.set_xlabel("time (s)")
-    ax1.set_ylabel("inclination error (deg)")
+    ax1.set(xlabel="time (s)", ylabel="inclination error (deg)", ylim=(0, None))
     ax1.set_title(f"{r.name}: inclination error over time (dashed: where an estimate diverged)")
     ax1.legend(fontsize=8, ncol=3)
     ax1.grid(alpha=0.3)
-    ax1.set_ylim(bottom=0)
     return fig
 
 
@@ -498,12 +467,6 @@ def evaluation_figure(results: Sequence[TrialResult], *, detail: int = 0):
 
 #: a firmware run counts this many estimator runs in the progress fraction (an emulation takes much longer)
 FIRMWARE_WEIGHT = 20
-
-
-def estimator_specs(estimators, rate_hz: float, *, own_rate: bool = False) -> list[EstimatorSpec]:
-    """The specs of ``estimators`` (None: the defaults; text, a comma-separated list, or selected objects)."""
-    items = split_list(estimators) if isinstance(estimators, str) else estimators
-    return default_specs(rate_hz, own_rate=own_rate, only=None if items is None else list(items))
 
 
 def evaluate_data(
@@ -518,14 +481,11 @@ def evaluate_data(
     variant: str | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> list[TrialResult]:
-    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and
-    each ``firmware`` ELF on the emulated board with each trial.
-
-    ``own_rate``: trials at their own rate, not through the STEVAL pipeline (``seed``; ``sensor_noise``: the LSM6DSL's
-    white noise); ``max_seconds``: each trial's first seconds; ``variant``: the replica's release on a firmware's
-    inputs; ``progress(fraction, stage)``. Every input is checked before the work."""
+    """Score ``estimators`` on BROAD trials and captures with ground truth (``paths``: files and folders), and each
+    ``firmware`` ELF on the emulated board with each trial. ``own_rate``: not through the STEVAL pipeline; ``variant``:
+    the replica's release on a firmware's inputs. Every input is checked before the work."""
     items = broad.trial_paths(paths)
-    n_specs = len(estimator_specs(estimators, 100.0))  # the selection, checked before any work (any rate)
+    n_specs = len(default_specs(100.0, only=estimators))  # the selection, checked before any work (any rate)
     if max_seconds is not None and not (max_seconds > 0 and math.isfinite(max_seconds)):
         raise ParamError(f"{{max_seconds}} must be a positive number of seconds, got {max_seconds}", "max_seconds")
     elfs = list(firmware)
@@ -548,14 +508,13 @@ def evaluate_data(
     for p in items:
         tick(p.name, "loading", 0)
         if p.suffix != ".npz":
-            results.append(evaluate_capture(p, estimator_specs(estimators, AHRS_RATE_HZ), progress=tick))
+            results.append(evaluate_capture(p, default_specs(AHRS_RATE_HZ, only=estimators), progress=tick))
             continue
         trial = cut_trial(broad.load_trial(p), max_seconds)
-        if own_rate:
-            view = broad.own_rate_view(trial)
-        else:
-            view = broad.steval_view(trial, seed=seed, sensor=Lsm6dsl() if sensor_noise else None)
-        res = evaluate_view(view, estimator_specs(estimators, view.rate_hz, own_rate=own_rate), trial.name, tick)
+        sensor = Lsm6dsl() if sensor_noise else None
+        view = broad.own_rate_view(trial) if own_rate else broad.steval_view(trial, seed=seed, sensor=sensor)
+        specs = default_specs(view.rate_hz, own_rate=own_rate, only=estimators)
+        res = evaluate_view(view, specs, trial.name, tick)
         for elf, label in zip(elfs, labels):
             start = done
 

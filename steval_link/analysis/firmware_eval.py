@@ -1,29 +1,23 @@
-"""A firmware ELF scored against ground truth (``steval evaluate --firmware``): it runs on the emulated board fed with
-a BROAD trial's motion, and its own ``thx``/``thy`` (pitch about x, roll about y) per AHRS step are scored like the
-Python estimators.
+"""A firmware ELF scored against ground truth (``steval evaluate --firmware``) on the emulated board fed with a BROAD
+trial's motion: its own ``thx``/``thy`` (pitch about x, roll about y) per AHRS step, scored like the estimators.
 
-The output comes from its attitude frames when it streams them (frame step ``i`` is the ``i``-th AHRS step), else
-from its globals read by symbol once per step: ``euler_ahrs`` (float thx, thy, thz) and ``ahrs`` (q0..q3) when the
-step ends, the inputs ``acc_ahrs`` / ``gyro_ahrs`` (float mg / mdps) and ``gTHR`` (int16) when it starts.
-
-Metric: the inclination error of ``quaternion_from_euler(thx, thy, 0)`` against the truth aligned per step
-(:class:`~steval_link.emulation.broad.StepTruth`), RMSE in degrees over the movement steps. The bit-exact replica
-runs on the firmware's own inputs and is scored the same way. Cost: emulated instructions per AHRS step, not M4
-cycles."""
+Its output comes from its attitude frames (frame step ``i`` is AHRS step ``i``), else from its globals read by symbol:
+``euler_ahrs`` and ``ahrs`` when a step ends, ``acc_ahrs``/``gyro_ahrs`` (mg/mdps) and ``gTHR`` when it starts.
+Metric: the inclination error of ``quaternion_from_euler(thx, thy, 0)`` against the per-step truth, RMSE in degrees
+over the movement steps; the replica runs on the firmware's own inputs. Cost: emulated instructions, not M4 cycles."""
 
 from __future__ import annotations
 
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from steval_link import constants as C
-from steval_link.analysis.coverage import Coverage, coverage_of
-from steval_link.analysis.report import on_rows
+from steval_link.analysis.report import Coverage, coverage_of, on_rows
 from steval_link.emulation.broad import BroadTrial, StepTruth, TruthRows, score_euler
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.symbol_attitude import elf_filter_variant
@@ -66,25 +60,14 @@ def cut_trial(trial: BroadTrial, max_seconds: float | None) -> BroadTrial:
     n = int(math.floor(max_seconds * trial.fs_hz)) + 1
     if n >= trial.acc_mps2.shape[0]:
         return trial
-    n = max(n, 2)
-    return BroadTrial(
-        trial.name, trial.fs_hz, trial.acc_mps2[:n], trial.gyr_radps[:n], trial.quat_wxyz[:n], trial.movement[:n]
-    )
+    cut = slice(max(n, 2))
+    return replace(trial, **{k: getattr(trial, k)[cut] for k in ("acc_mps2", "gyr_radps", "quat_wxyz", "movement")})
 
 
 @dataclass
 class FirmwareResult:
-    """One firmware on one trial.
-
-    Attributes:
-        label: table label (:func:`firmware_labels`). elf: its path. trial: trial name.
-        source: "frames" (its attitude frames) or "globals" (``euler_ahrs`` read by symbol).
-        truth: per-step ground truth. thx_rad, thy_rad: (M,) float32 its output per step (NaN: none for that step).
-        err_rad: (M,) inclination error, rad. rmse_deg: RMSE over the movement steps, degrees.
-        instructions: (K,) instructions per AHRS step.
-        replica_rmse_deg: the replica's RMSE on the firmware's inputs (None: inputs unknown); replica_bit_exact of
-            replica_steps carry the firmware's bits. settings: the replica's settings (status frames, else defaults).
-        emulated_s: emulated seconds. gains: the gains it ran with, in words (:func:`gains_text`)."""
+    """One firmware on one trial: ``source`` "frames" or "globals" (by symbol); ``thx_rad``, ``thy_rad`` (M,) float32
+    per step (NaN: none), scored over the movement steps; ``instructions`` per AHRS step; the replica on its inputs."""
 
     label: str
     elf: str
@@ -119,7 +102,7 @@ class FirmwareResult:
     def instructions_summary(self) -> dict[str, float | None]:
         a = self.instructions
         if a.size == 0:
-            return {"median": None, "mean": None, "min": None, "max": None}
+            return dict.fromkeys(("median", "mean", "min", "max"))
         return {
             "median": float(np.median(a)),
             "mean": round(float(np.mean(a)), 1),
@@ -129,8 +112,7 @@ class FirmwareResult:
 
 
 def gains_text(settings: MahonySettings | None, thr, *, from_status: bool) -> str:
-    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``;
-    ``thr``: each step's throttle; ``from_status``: the settings came from its status frames."""
+    """The gains a run used, in words: ``kp 10 (ground: thr < 200), ki 0.1, dt 6.25 ms (its status frames)``."""
     st = settings or MahonySettings()
     t = np.asarray(thr).reshape(-1)
     ground = t < st.min_thr
@@ -152,12 +134,8 @@ class _Globals:
     """The firmware's attitude globals read by symbol at each AHRS step's start (inputs) and end (outputs)."""
 
     def __init__(self, emu: Emulation) -> None:
-        e = emu.elf
-        self.euler = e.addr("euler_ahrs")
-        self.ahrs = e.addr("ahrs")
-        self.acc = e.addr("acc_ahrs")
-        self.gyro = e.addr("gyro_ahrs")
-        self.thr = e.addr("gTHR")
+        names = ("euler_ahrs", "ahrs", "acc_ahrs", "gyro_ahrs", "gTHR")
+        self.euler, self.ahrs, self.acc, self.gyro, self.thr = (emu.elf.addr(name) for name in names)
         self.inputs: list[tuple[float, ...]] = []
         self.outputs: list[tuple[float, ...]] = []
         emu.step_start_observers.append(self._start)
@@ -176,15 +154,13 @@ class _Globals:
         self.inputs.append((*acc.tolist(), *gyro.tolist(), thr))
 
     def _end(self, board) -> None:
-        nan = float("nan")
-        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [nan] * 2
-        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [nan] * 4
+        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [math.nan] * 2
+        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [math.nan] * 4
         self.outputs.append((*e, *q))
 
 
 def _globals_replica(inp: np.ndarray, out: np.ndarray, has_q: bool, first: str | None):
-    """The replica on the inputs read by symbol, each release's filter tried (``first`` first, kept on a tie):
-    (settings, thx, thy, bit-exact per step) of the one bit-exact on the most steps."""
+    """(settings, thx, thy, bit-exact per step) of the release bit-exact on the most steps (``first`` wins a tie)."""
     best = None
     for v in [first] + [v for v in st_mahony.VARIANTS if v != first] if first else list(st_mahony.VARIANTS):
         settings = MahonySettings(variant=v)
@@ -210,10 +186,8 @@ def run_firmware(
     progress: Callable[[float], None] | None = None,
     variant: str | None = None,
 ) -> FirmwareResult:
-    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output.
-
-    The replica runs the filter of ``variant``, else of the release the ELF's code or the data shows. UserError: no
-    attitude frames and no ``euler_ahrs`` symbol, or no AHRS step."""
+    """Run ``elf`` on the emulated board fed with ``trial`` (to 3 s past its end) and score its attitude output; the
+    replica runs the filter of ``variant``, else of the release the ELF's code or the data shows."""
     t0 = time.perf_counter()
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)
@@ -242,23 +216,10 @@ def run_firmware(
             "(an ELF with its symbols, not a stripped .bin/.hex)"
         )
     err, rmse = score_euler(out.thx, out.thy, truth.q_wxyz, truth.movement)
-    res = FirmwareResult(
-        label,
-        str(elf),
-        trial.name,
-        out.source,
-        truth,
-        out.thx,
-        out.thy,
-        err,
-        rmse,
-        np.asarray(report.step_instructions, np.int64),
-        settings=out.settings,
-        emulated_s=report.emulated_s,
-        notes=out.notes,
-        gains=out.gains,
-        wall_s=time.perf_counter() - t0,
-    )
+    instructions = np.asarray(report.step_instructions, np.int64)
+    res = FirmwareResult(label, str(elf), trial.name, out.source, truth, out.thx, out.thy, err, rmse, instructions)
+    res.settings, res.emulated_s, res.notes, res.gains = out.settings, report.emulated_s, out.notes, out.gains
+    res.wall_s = time.perf_counter() - t0
     if out.replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(out.replica_thx, out.replica_thy, truth.q_wxyz, truth.movement)
         res.replica_bit_exact, res.replica_steps = out.replica_exact, out.replica_steps
@@ -304,12 +265,8 @@ def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hi
     att = tel.attitude
     rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
     steps = np.asarray(att.step)[rows]
-    notes = []
-    lost = np.ones(n, bool)
-    lost[steps] = False
-    lost &= truth.movement
-    if lost.any():
-        notes.append(f"{int(lost.sum())} movement steps without an attitude frame (not scored)")
+    lost = np.asarray(truth.movement, bool) & ~np.isin(np.arange(n), steps)
+    notes = [f"{int(lost.sum())} movement steps without an attitude frame (not scored)"] if lost.any() else []
     if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
         inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
         if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):

@@ -1,9 +1,8 @@
 """The firmware's flight control (ST's ``flight_control.c``, ``rc.c``, ``motor.c``) recomputed on the host from a
 flight-control frame: the outer loop's P and I terms, the mixer, what each motor is and where it sits.
 
-Everything is float32 in the firmware's order of operations, so it comes out bit for bit: with ``ki1 = 0`` the outer
-loop ``s1`` is exactly ``P = kp1·(target − angle)`` for pitch and roll; yaw's ``thz`` is integrated in the ISR, so
-its P is close but not exact. The mixer of ``FlightControlPID_innerLoop``::
+Float32 in the firmware's order of operations, so bit for bit: with ``ki1 = 0`` the outer loop ``s1`` is exactly
+``P = kp1·(target − angle)`` for pitch and roll (yaw's ``thz`` is integrated in the ISR: close). The mixer::
 
     motor_thr = (int16)(0.05f·gTHR + 633.333f)
     motor1 = motor_thr − x_s2 − y_s2 + z_s2      (right rear,  clockwise)
@@ -61,8 +60,7 @@ def motor_thr(thr) -> np.ndarray:
 
 
 def mixer_pwm(thr, inner_s2) -> np.ndarray:
-    """(N, 4) float32: the motor PWM the mixer computes from gTHR (N,) and the inner outputs (N, 3), in the
-    firmware's order of operations (left to right, float32)."""
+    """(N, 4) float32 motor PWM from gTHR (N,) and the inner outputs (N, 3), in the firmware's order of operations."""
     s2 = np.asarray(inner_s2, dtype=np.float32).reshape(-1, 3)
     mt = motor_thr(thr).reshape(-1)
     out = np.empty((len(s2), 4), np.float32)
@@ -84,17 +82,14 @@ def expected_motor_pwm(thr, inner_s2, armed) -> np.ndarray:
 
 
 def outer_p(euler_rc_rad, angles_rad) -> np.ndarray:
-    """(N, 3) float32 outer-loop P terms ``kp1·(target − angle)`` per axis (x pitch, y roll, z yaw);
-    ``angles_rad`` (N, 3) = thx, thy, thz of the step."""
+    """(N, 3) float32 outer-loop P terms ``kp1·(target − angle)``; angles (N, 3) thx pitch, thy roll, thz yaw."""
     rc = np.asarray(euler_rc_rad, dtype=np.float32).reshape(-1, 3)
     ang = np.asarray(angles_rad, dtype=np.float32).reshape(-1, 3)
-    kp = np.asarray(C.OUTER_KP, dtype=np.float32)
-    return kp * (rc - ang)
+    return np.asarray(C.OUTER_KP, dtype=np.float32) * (rc - ang)
 
 
 def no_flight_figure_reason(fc) -> str | None:
-    """Why a capture gets no flight-control figure (one sentence), or None: it needs frames (``tel.fc``)
-    and the drone armed in one (disarmed, the targets sit at the sticks' rest and the motors at 0)."""
+    """Why a capture gets no flight-control figure (no frames, or never armed), or None."""
     if len(fc) == 0:
         return "the capture has no flight-control frames"
     if not (np.asarray(fc.fc_flags).astype(np.int64) & FC_ARMED).any():

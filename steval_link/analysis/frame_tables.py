@@ -30,9 +30,7 @@ _STATUS_COLUMNS = (
 
 def attitude_table(tel) -> dict[str, np.ndarray]:
     """The CSV's columns: one row per attitude frame, flight-control columns joined on by step (NaN elsewhere)."""
-    table = tel.attitude_table()
-    table.update(tel.flight_columns())
-    return table
+    return tel.attitude_table() | tel.flight_columns()
 
 
 def status_table(tel) -> dict[str, np.ndarray]:
@@ -53,8 +51,7 @@ def status_table(tel) -> dict[str, np.ndarray]:
 
 
 def fc_table(tel) -> dict[str, np.ndarray]:
-    """One row per flight-control frame, the CSV's flight-control column names (targets, sticks, outer and inner
-    loop outputs, motors, battery, flags)."""
+    """One row per flight-control frame, with the CSV's flight-control column names."""
     fc = tel.fc
     cols: dict[str, np.ndarray] = {"step": fc.step, "t_fw_s": fc.t_fw_s, "t_host_s": fc.t_host_s}
     n = len(fc)
@@ -98,9 +95,7 @@ def record_table(rows: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def frame_tables(tel) -> dict[str, dict[str, np.ndarray]]:
-    """One column table per frame type the capture holds (``attitude`` always; ``status``, ``fc``, ``ack``,
-    ``command`` when present); ``text_records`` the records of text telemetry; ``text`` lines as ``t_host_s`` and
-    ``text``."""
+    """One column table per frame type the capture holds (``attitude`` always), text records and text lines."""
     out = {"attitude": attitude_table(tel)}
     if len(tel.status):
         out["status"] = status_table(tel)
@@ -132,16 +127,13 @@ def _plain(v: Any) -> Any:
 
 
 def settings_of(tel) -> dict[str, Any]:
-    """The filter settings the status frames report (last frame; ``differs_from_defaults``, ``changes``,
-    ``change_list``), or ``{"from": "none"}`` without status frames."""
+    """The filter settings the status frames report, or ``{"from": "none"}`` without status frames."""
     return _plain(filter_settings_report(tel) or {"from": "none"})
 
 
 def header_of(tel) -> dict[str, Any]:
-    """The capture header (``port``, ``baud``, ``start_time_utc``, ``tool_version``, ``extra``) and the file's
-    ``path`` and ``kind``."""
+    """The capture header (``port``, ``baud``, ``extra``, ...) and the file's ``path`` and ``kind``."""
     src = tel.source or {}
-    header = dict(src.get("header") or {})
-    header["path"] = str(src.get("path") or "")
-    header["kind"] = str(src.get("kind") or "")
-    return _plain(header)
+    return _plain(
+        dict(src.get("header") or {}) | {"path": str(src.get("path") or ""), "kind": str(src.get("kind") or "")}
+    )

@@ -1,9 +1,6 @@
-"""``steval report``: one capture (or several) as a lab report: a self-contained HTML page or Markdown with images.
-
-The report is data first: :class:`Section` s of sentences, lines, tables and figures (PNG), built from what the
-other analysis modules computed. :func:`render_html` inlines the CSS and figures (no script, nothing from the
-network); :func:`render_markdown` writes GitHub tables and PNG files. The page is written with the standard
-library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
+"""``steval report``: captures as a lab report, built as :class:`Section` s of sentences, lines, tables and figures: a
+self-contained HTML page (inline CSS and figures, no script, nothing from the network) or Markdown with PNG files.
+Written with the standard library's ``html.escape``: a template engine would be one more dependency for a dozen tags."""
 
 from __future__ import annotations
 
@@ -41,8 +38,7 @@ class Table:
 
 @dataclass
 class Section:
-    """One heading of the report and what stands under it, in this order: sentences, monospace lines, tables,
-    figures."""
+    """One heading and what stands under it, in order: sentences, monospace lines, tables, figures."""
 
     heading: str
     sentences: list[str] = field(default_factory=list)
@@ -71,9 +67,6 @@ def figure_png(fig, *, dpi: int = 100) -> bytes:
     return buf.getvalue()
 
 
-# ---- one capture -------------------------------------------------------------------------------------------------
-
-
 def _settings_table(report: ComparisonReport) -> Table | None:
     """The filter settings the status frames report, each with the 170120 default when it differs."""
     fs = report.filter_settings
@@ -90,12 +83,9 @@ def _settings_table(report: ComparisonReport) -> Table | None:
         ("correction", "accelerometer correction"),
         ("variant", "the ST release whose filter it runs"),
     ):
-        if key not in fs:
-            continue
-        v = fs[key]
-        default = diff.get(key, [None, None])[1]
-        dtext = "" if default is None else setting_text(default)
-        rows.append([what, setting_text(v), dtext or "same"])
+        if key in fs:
+            default = diff.get(key, [None, None])[1]
+            rows.append([what, setting_text(fs[key]), "same" if default is None else setting_text(default)])
     return Table(f"filter settings (from {fs['status_frames']} status frames)", ["setting", "value", "default"], rows)
 
 
@@ -109,19 +99,18 @@ def verdict_sentences(report: ComparisonReport) -> list[str]:
         ]
     if p.seeded == 0:
         return [f"The replica could not be started: {p.unseeded_reason or 'no status snapshot'}."]
-    out = []
     if p.all_exact:
-        out.append(
+        out = [
             f"Bit-exact on {p.bit_exact} of {p.seeded} steps: the Python replica of ahrs_fusion_ag reproduces "
             "every quaternion and angle the firmware sent, bit for bit."
-        )
+        ]
     else:
         fm = p.first_mismatch
-        out.append(
+        out = [
             f"NOT bit-exact: {p.bit_exact} of {p.seeded} steps agree; the first difference is at step {fm['step']} "
-            f"(t = {fm['t_rel_s']:.3f} s into the capture)."
-        )
-        out += p.diagnosis
+            f"(t = {fm['t_rel_s']:.3f} s into the capture).",
+            *p.diagnosis,
+        ]
     if p.seeded < p.rows:
         out.append(f"{p.rows - p.seeded} of {p.rows} rows were not covered (before a snapshot, or after lost frames).")
     return out
@@ -131,24 +120,14 @@ def _estimator_table(report: ComparisonReport) -> Table:
     """Each estimator against the firmware (RMS, max |Δ| in degrees), with the RMSE against truth when kept."""
     truth = (report.truth or {}).get("rmse_deg")
     head = ["estimator", "steps", "pitch RMS", "pitch max |Δ|", "roll RMS", "roll max |Δ|"]
-    if truth:
-        head.append("RMSE vs truth")
-    head.append("note")
-    rows = []
-    if truth:
-        rows.append(
-            ["firmware (drone)", str(report.rows), "0", "0", "0", "0", fmt_number(truth.get("firmware"), ".3f"), ""]
-        )
+    head += ["RMSE vs truth", "note"] if truth else ["note"]
+    fw = fmt_number(truth.get("firmware"), ".3f") if truth else ""
+    rows = [["firmware (drone)", str(report.rows), "0", "0", "0", "0", fw, ""]] if truth else []
     for t in report.traces:
-        if not t.available:
-            row = [t.label, "—", "", "", "", ""] + ([""] if truth else []) + [t.note]
-        else:
-            row = [t.label, str(min(t.pitch.n, t.roll.n))]
-            row += [fmt_number(v) for v in (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)]
-            if truth:
-                row.append(fmt_number(truth.get(t.name), ".3f"))
-            row.append(t.note)
-        rows.append(row)
+        stats = (t.pitch.rms_deg, t.pitch.max_abs_deg, t.roll.rms_deg, t.roll.max_abs_deg)
+        cells = [str(min(t.pitch.n, t.roll.n)), *map(fmt_number, stats)] if t.available else ["—", "", "", "", ""]
+        vs_truth = [fmt_number(truth.get(t.name), ".3f") if t.available else ""] if truth else []
+        rows.append([t.label, *cells, *vs_truth, t.note])
     cap = "angles against the firmware, degrees (Δ = estimator − firmware; pitch = thx about x, roll = thy about y)"
     if truth:
         cap += (
@@ -172,14 +151,8 @@ def _step_cost(report: ComparisonReport) -> Section:
         us = rt.ahrs_us(what)
         share = fmt_number(100 * us / period if us is not None else None, ".1f")
         rows.append([what, fmt_number(us, ".1f"), fmt_number(getattr(rt, f"ahrs_cycles_{what}"), ".0f"), share])
-    mhz = (rt.cpu_hz or 0) / 1e6
-    sec.tables.append(
-        Table(
-            f"ahrs_fusion_ag per step at {mhz:g} MHz ({unit}); the AHRS period is {period:.0f} µs",
-            ["", "µs", unit, "% of the period"],
-            rows,
-        )
-    )
+    caption = f"ahrs_fusion_ag per step at {(rt.cpu_hz or 0) / 1e6:g} MHz ({unit}); the AHRS period is {period:.0f} µs"
+    sec.tables.append(Table(caption, ["", "µs", unit, "% of the period"], rows))
     if rt.cycles_emulated:
         sec.sentences.append(
             "This capture comes from the emulated board: the counts are instructions, not Cortex-M4 cycles (a real "
@@ -191,9 +164,8 @@ def _step_cost(report: ComparisonReport) -> Section:
 def _peak_table(peaks: dict[str, list[Peak]]) -> Table:
     rows = []
     for name, sensor, _ in SIGNALS:
-        found = peaks.get(name, [])
-        text = ", ".join(f"{p.freq_hz:.1f} Hz ({p.amplitude:.1f} {UNITS[sensor]})" for p in found) or "no clear peak"
-        rows.append([name.replace("_", " "), text])
+        text = ", ".join(f"{p.freq_hz:.1f} Hz ({p.amplitude:.1f} {UNITS[sensor]})" for p in peaks.get(name, []))
+        rows.append([name.replace("_", " "), text or "no clear peak"])
     return Table("strongest peaks per axis (frequency, amplitude of the sinusoid)", ["signal", "peaks"], rows)
 
 
@@ -206,8 +178,7 @@ def capture_sections(
     warnings: list[str] = (),
     spectrum_note: str | None = None,
 ) -> list[Section]:
-    """The sections of one capture: summary and settings, attitude, the replica's verdict, the estimators, the
-    step cost, the spectrum (else ``spectrum_note``) and the flight control."""
+    """The sections of one capture, from its summary to its flight control (the spectrum else ``spectrum_note``)."""
     from steval_link.analysis.plots import (  # matplotlib (checked by the caller)
         comparison_figure,
         differences_figure,
@@ -224,24 +195,16 @@ def capture_sections(
         "Pitch is thx (rotation about x, the right axis, nose up +) and roll is thy (rotation about y, the forward "
         "axis): the firmware's names. The lab handouts' textbook formulas call them the other way round."
     )
-    attitude.figures.append(
-        Figure(
-            "attitude",
-            "the firmware's angles with the replica, the estimators and accelerometer-only tilt; below, firmware "
-            "− replica; right, each estimator's difference from the firmware",
-            figure_png(comparison_figure(tel, report)),
-        )
+    what = (
+        "the firmware's angles with the replica, the estimators and accelerometer-only tilt; below, firmware − replica"
     )
+    what += "; right, each estimator's difference from the firmware"
+    attitude.figures.append(Figure("attitude", what, figure_png(comparison_figure(tel, report))))
     verdict = Section("firmware against the replica", sentences=verdict_sentences(report))
     estimators = Section("estimators", tables=[_estimator_table(report)], sentences=list(report.notes))
     if report.estimates:
-        estimators.figures.append(
-            Figure(
-                "estimators",
-                "each estimator minus the firmware over time, degrees (accelerometer-only tilt in grey)",
-                figure_png(differences_figure(tel, report)),
-            )
-        )
+        what = "each estimator minus the firmware over time, degrees (accelerometer-only tilt in grey)"
+        estimators.figures.append(Figure("estimators", what, figure_png(differences_figure(tel, report))))
     spectrum = Section("sensor spectrum")
     if spectra is None:
         spectrum.sentences.append(spectrum_note or "no spectrum")
@@ -255,11 +218,8 @@ def capture_sections(
     flight = Section("flight control")
     why = no_flight_figure_reason(tel.fc)
     if why is None:
-        flight.figures.append(
-            Figure(
-                "flight-control", "targets against angles, PID terms, motors", figure_png(flight_control_figure(tel))
-            )
-        )
+        what = "targets against angles, PID terms, motors"
+        flight.figures.append(Figure("flight-control", what, figure_png(flight_control_figure(tel))))
     else:
         flight.sentences.append(f"No flight-control figure: {why}.")
     return [summary, attitude, verdict, estimators, _step_cost(report), spectrum, flight]
@@ -269,20 +229,10 @@ def side_by_side_section(result) -> Section:
     """The flights side by side (:class:`~steval_link.analysis.side_by_side.SideBySide`): its lines and figure."""
     from steval_link.analysis.side_by_side import side_by_side_figure  # matplotlib (checked)
 
-    return Section(
-        "the captures side by side",
-        lines=format_side_by_side(result),
-        figures=[
-            Figure(
-                "side-by-side",
-                "every flight on one time axis against the first one's accelerometer-only tilt",
-                figure_png(side_by_side_figure(result)),
-            )
-        ],
-    )
+    what = "every flight on one time axis against the first one's accelerometer-only tilt"
+    figure = Figure("side-by-side", what, figure_png(side_by_side_figure(result)))
+    return Section("the captures side by side", lines=format_side_by_side(result), figures=[figure])
 
-
-# ---- writers -----------------------------------------------------------------------------------------------------
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;max-width:1320px;margin:1.5em auto;
@@ -299,9 +249,9 @@ figcaption{font-size:.9em;color:#555}
 def _cell_class(text: str) -> str:
     try:
         float(text.replace(",", ""))
+        return ' class="n"'
     except ValueError:
         return ""
-    return ' class="n"'
 
 
 def _html_table(t: Table) -> str:
@@ -341,8 +291,7 @@ def _md_cell(text: str) -> str:
 
 
 def render_markdown(report: LabReport, images_dir: Path, images_link: str) -> str:
-    """The report as Markdown: GitHub tables, each figure written to ``images_dir`` as ``NN-KEY.png`` and linked as
-    ``images_link/NN-KEY.png`` (relative to the Markdown file)."""
+    """The report as Markdown, each figure written to ``images_dir`` as ``NN-KEY.png``, linked under ``images_link``."""
     images_dir.mkdir(parents=True, exist_ok=True)
     out = [f"# {report.title}", ""]
     n = 0

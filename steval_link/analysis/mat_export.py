@@ -38,8 +38,7 @@ def mat_name(name: str) -> str:
 
 
 def _value(v: Any) -> Any:
-    """Nested dicts as structs (names made valid), lists of dicts or mixed lists as cell arrays, bool as uint8,
-    numpy arrays as they are (1-D ones saved as columns)."""
+    """A value as MATLAB takes it: dicts as structs, mixed lists as cell arrays, bool as uint8, None as []."""
     if isinstance(v, dict):
         return {mat_name(k): _value(x) for k, x in v.items()}
     if isinstance(v, np.ndarray):
@@ -61,12 +60,8 @@ def _value(v: Any) -> Any:
 def write_mat(
     tables: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], header: dict[str, Any], out: BinaryIO | str
 ) -> None:
-    """Write ``tables`` (frame type → column → array, e.g. :func:`steval_link.analysis.frame_tables.frame_tables`),
-    ``settings`` and ``header`` as one MATLAB (v5) file ``out`` (a path or a binary file)."""
+    """Write ``tables`` (frame type → column → array), ``settings`` and ``header`` as one MATLAB (v5) file ``out``."""
     savemat = require_scipy()
-    data: dict[str, Any] = {}
-    for kind, table in tables.items():
-        data[mat_name(kind)] = {mat_name(col): _value(np.asarray(v)) for col, v in table.items()}
-    data["settings"] = _value(settings)
-    data["header"] = _value(header)
+    data = {mat_name(kind): {mat_name(c): _value(np.asarray(v)) for c, v in t.items()} for kind, t in tables.items()}
+    data |= {"settings": _value(settings), "header": _value(header)}
     savemat(out, data, appendmat=False, long_field_names=True, do_compression=False, oned_as="column")

@@ -1,19 +1,13 @@
 """A decoded capture as an MCAP file (``steval export --mcap``) for Foxglove, PlotJuggler, ROS 2 tools and Rerun: JSON
-messages (``jsonschema`` schemas, written in full in the file) logged at the firmware's time (ns since boot).
-
-| topic | schema | one message per |
-|---|---|---|
-| ``/attitude/transform`` | ``foxglove.FrameTransform`` (``world`` → ``drone``) | attitude frame |
-| ``/attitude/pose`` | ``foxglove.PoseInFrame`` (frame ``world``) | attitude frame |
-| ``/attitude`` | ``steval.Attitude``: IMU inputs, the firmware's estimate | attitude frame |
-| ``/status`` | ``steval.Status`` | status frame |
-| ``/flight_control`` | ``steval.FlightControl`` | flight-control frame |
-
-Foxglove quaternions are the firmware's ``q`` normalised (text-mode rows: from their angles). Numbers are float32
-written with 9 significant digits; NaN is ``null``."""
+messages (``jsonschema`` schemas, written in full in the file) logged at the firmware's time (ns since boot), one per
+frame (:data:`TOPICS`): ``/attitude/transform`` (``foxglove.FrameTransform`` ``world`` → ``drone``), ``/attitude/pose``
+(``foxglove.PoseInFrame``), ``/attitude`` (``steval.Attitude``: IMU inputs, the firmware's estimate), ``/status`` and
+``/flight_control``. Foxglove quaternions are the firmware's ``q`` normalised (text-mode rows: from their angles).
+Numbers are float32 written with 9 significant digits; NaN is ``null``."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import re
@@ -182,11 +176,8 @@ def _display_q(att) -> np.ndarray:
     q = np.asarray(att.q_wxyz, np.float64).copy()
     missing = ~np.isfinite(q).all(axis=1)
     if missing.any():
-        q[missing] = quaternion_from_euler(
-            np.nan_to_num(np.asarray(att.thx_rad, np.float64)[missing]),
-            np.nan_to_num(np.asarray(att.thy_rad, np.float64)[missing]),
-            np.nan_to_num(np.asarray(att.thz_rad, np.float64)[missing]),
-        )
+        angles = (att.thx_rad, att.thy_rad, att.thz_rad)
+        q[missing] = quaternion_from_euler(*(np.nan_to_num(np.asarray(v, np.float64)[missing]) for v in angles))
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.sqrt((q * q).sum(axis=1))
         q = np.where((n > 1e-6)[:, None], q / n[:, None], np.array([1.0, 0, 0, 0]))
@@ -270,21 +261,16 @@ def _row_messages(rows, schema: dict) -> tuple[np.ndarray, list[bytes]]:
         elif key != "timestamp":
             values = np.asarray(getattr(rows, RENAMED.get(key, key)))
             columns[key] = [_list(v) for v in values] if prop["type"] == "array" else _list(values)
-    datas = [
+    return ns_all, [
         json.dumps(dict(zip(columns, row)), separators=(",", ":"), allow_nan=False).encode()
         for row in zip(*columns.values())
     ]
-    return ns_all, datas
 
 
 def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = None, progress=None) -> dict[str, int]:
-    """Write ``tel`` (a :class:`~steval_link.link.telemetry.Telemetry`) as MCAP to ``out`` (a binary file or a
-    path); ``metadata``: name → JSON-able dict, stored as MCAP metadata records (values as JSON text). Returns the
-    message count per topic."""
+    """Write ``tel`` as MCAP to ``out`` (file or path), ``metadata`` as records; returns the message count per topic."""
     records = require_mcap()
-    own = isinstance(out, (str, Path))
-    stream = open(out, "wb") if own else out
-    try:
+    with open(out, "wb") if isinstance(out, (str, Path)) else contextlib.nullcontext(out) as stream:
         w = McapWriter(stream, records)
         present = {"/status": len(tel.status), "/flight_control": len(tel.fc)}
         channel = {
@@ -308,9 +294,6 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
         for name, data in (metadata or {}).items():
             w.metadata(name, {str(k): json.dumps(v) for k, v in data.items()})
         w.finish()
-    finally:
-        if own:
-            stream.close()
     return {topic: w.counts[c] for topic, c in channel.items()}
 
 
@@ -318,16 +301,10 @@ def write_mcap(tel, out: BinaryIO | Path, *, metadata: dict[str, Any] | None = N
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _INDEX_HEAD = struct.Struct("<BQHI")
-_MESSAGE_DTYPE = np.dtype(
-    [
-        ("opcode", "u1"),
-        ("length", "<u8"),
-        ("channel", "<u2"),
-        ("seq", "<u4"),
-        ("log_time", "<u8"),
-        ("publish_time", "<u8"),
-    ]
-)  # packed: 31 bytes, a message record's head
+_MESSAGE_DTYPE = np.dtype(  # packed: 31 bytes, a message record's head
+    [("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("seq", "<u4")]
+    + [("log_time", "<u8"), ("publish_time", "<u8")]
+)
 
 
 class McapWriter:
@@ -383,8 +360,7 @@ class McapWriter:
         return rec.id
 
     def add_block(self, channels: np.ndarray, t_ns: np.ndarray, seq: np.ndarray, datas: list[bytes]) -> None:
-        """Messages ``datas`` (one per entry of ``channels``, ``t_ns`` (log and publish time), ``seq``) as one chunk
-        of their own."""
+        """Messages ``datas`` (one per entry of ``channels``, ``t_ns``, ``seq``) as one chunk of their own."""
         m = len(datas)
         if m == 0:
             return

@@ -11,7 +11,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.analysis.flight_control import MOTORS, outer_p
-from steval_link.analysis.report import angle_diff_rad, on_rows, true_runs
+from steval_link.analysis.report import angle_diff_rad, on_rows, setting_text, true_runs
 from steval_link.errors import ParamError, UserError
 
 INSTALL_HINT = 'pip install "steval-link[plot]"'
@@ -56,17 +56,11 @@ def _decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -
     for a, b in zip(edges[:-1], edges[1:]):
         seg = y[a:b]
         fin = np.isfinite(seg)
-        if not fin.any():
-            tt += [t[a]]
-            yy += [np.nan]
-            continue
-        i_lo = a + int(np.nanargmin(seg))
-        i_hi = a + int(np.nanargmax(seg))
-        for i in sorted((i_lo, i_hi)):
-            tt.append(t[i])
-            yy.append(y[i])
-        if not fin.all():
-            tt.append(t[b - 1])
+        picks = sorted((a + int(np.nanargmin(seg)), a + int(np.nanargmax(seg)))) if fin.any() else []
+        tt += [t[i] for i in picks]
+        yy += [y[i] for i in picks]
+        if not fin.all():  # a NaN gap stays a gap
+            tt.append(t[b - 1] if picks else t[a])
             yy.append(np.nan)
     return np.asarray(tt), np.asarray(yy)
 
@@ -107,15 +101,14 @@ def plot_comparison(tel, report, out_png, *, title: str | None = None) -> Path:
 
 
 def comparison_figure(tel, report, *, title: str | None = None):
-    """Pitch (thx, about x) and roll (thy, about y) over firmware time: the firmware, the replica, the
-    estimators, accel-only tilt, flight-throttle spans shaded; below, firmware − replica with the throttle; right, RMS
-    and max |Δ| against the firmware per estimator."""
+    """Pitch (thx, about x) and roll (thy, about y) of the firmware, replica and estimators over firmware time; below,
+    firmware − replica with the throttle; right, RMS and max |Δ| against the firmware per estimator."""
     plt = require_matplotlib()
     from matplotlib.gridspec import GridSpec
 
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
-    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
+    fw = _degrees(a.thx_rad, a.thy_rad)
     fs = report.filter_settings or {}
     min_thr = fs["min_thr"] if isinstance(fs.get("min_thr"), int) else C.MIN_THR
     replica = _replica_degrees(report, t.shape[0])
@@ -138,8 +131,7 @@ def comparison_figure(tel, report, *, title: str | None = None):
         )
     _restart_lines((ax_p, ax_r, ax_d), t, a.step)
     _comparison_legend(fig, ax_p)
-    plt.setp(ax_p.get_xticklabels(), visible=False)
-    plt.setp(ax_r.get_xticklabels(), visible=False)
+    plt.setp([*ax_p.get_xticklabels(), *ax_r.get_xticklabels()], visible=False)
     _replica_panel(ax_d, t, fw, replica, report)
     _throttle_twin(ax_d, t, thr, min_thr)
     _difference_bars(ax_b, ax_txt, report)
@@ -148,16 +140,17 @@ def comparison_figure(tel, report, *, title: str | None = None):
     ax_txt.text(
         0.0, 0.72, "\n".join(wrapped), va="top", ha="left", fontsize=8, family="monospace", transform=ax_txt.transAxes
     )
-    src = report.source.get("path") or "capture"
-    shown = (["ST-Mahony replica"] if replica is not None else []) + [label for _, label, _, _ in traces]
-    fig.suptitle(
-        title
-        or f"steval compare: {Path(str(src)).name} — firmware vs {', '.join(shown) or 'no estimator'} "
-        "(axes: x right, y forward, z up)",
-        fontsize=11,
-    )
+    src = Path(str(report.source.get("path") or "capture")).name
+    shown = ", ".join((["ST-Mahony replica"] if replica is not None else []) + [label for _, label, _, _ in traces])
+    default = f"steval compare: {src} — firmware vs {shown or 'no estimator'} (axes: x right, y forward, z up)"
+    fig.suptitle(title or default, fontsize=11)
     fig.subplots_adjust(left=0.07, right=0.97, top=0.9, bottom=0.07)
     return fig
+
+
+def _degrees(thx_rad, thy_rad) -> dict[str, np.ndarray]:
+    """Pitch (thx, about x) and roll (thy, about y) in degrees, float64."""
+    return {"pitch": np.degrees(np.asarray(thx_rad, np.float64)), "roll": np.degrees(np.asarray(thy_rad, np.float64))}
 
 
 def _replica_degrees(report, n: int) -> dict[str, np.ndarray] | None:
@@ -165,10 +158,7 @@ def _replica_degrees(report, n: int) -> dict[str, np.ndarray] | None:
     if report.replay is None:
         return None
     rows, rep = report.replica_rows, report.replay
-    return {
-        "pitch": on_rows(n, rows, np.degrees(rep.thx_rad.astype(np.float64))),
-        "roll": on_rows(n, rows, np.degrees(rep.thy_rad.astype(np.float64))),
-    }
+    return _degrees(on_rows(n, rows, rep.thx_rad), on_rows(n, rows, rep.thy_rad))
 
 
 def _estimate_traces(report) -> list[tuple[str, str, dict[str, np.ndarray], tuple]]:
@@ -178,10 +168,8 @@ def _estimate_traces(report) -> list[tuple[str, str, dict[str, np.ndarray], tupl
     for name, est in report.estimates.items():
         label = next((tr.label for tr in report.traces if tr.name == name), name)
         valid = np.asarray(est.valid, bool)
-        x = np.where(valid, np.degrees(np.asarray(est.thx_rad, np.float64)), np.nan)
-        y = np.where(valid, np.degrees(np.asarray(est.thy_rad, np.float64)), np.nan)
-        style = _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)
-        traces.append((name, label, {"pitch": x, "roll": y}, style))
+        degrees = {k: np.where(valid, v, np.nan) for k, v in _degrees(est.thx_rad, est.thy_rad).items()}
+        traces.append((name, label, degrees, _STYLE.get(name) or (next(extra, "tab:red"), 1.0, "-", 4)))
     return traces
 
 
@@ -230,15 +218,14 @@ def _centre_text(ax, text: str, **kw) -> None:
 
 def _replica_panel(ax, t, fw, replica, report) -> None:
     """Firmware − replica in degrees: unseeded rows greyed, bit-exact said in words, the first difference marked."""
+    ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
     if replica is None:
         _centre_text(ax, "text-mode capture: the bit-exact replica needs binary frames", fontsize=10)
-        ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
         return
     p = report.replica
-    ax.plot(*_decimate(t, _wrap_deg(fw["pitch"] - replica["pitch"])), color="tab:blue", lw=0.9,
-            label="pitch: firmware − replica")  # fmt: skip
-    ax.plot(*_decimate(t, _wrap_deg(fw["roll"] - replica["roll"])), color="tab:red", lw=0.9,
-            label="roll: firmware − replica")  # fmt: skip
+    for key, colour in (("pitch", "tab:blue"), ("roll", "tab:red")):
+        d = _wrap_deg(fw[key] - replica[key])
+        ax.plot(*_decimate(t, d), color=colour, lw=0.9, label=f"{key}: firmware − replica")
     covered, exact = np.zeros(t.shape[0], bool), np.zeros(t.shape[0], bool)
     covered[report.replica_rows] = report.replay.seeded
     exact[report.replica_rows] = report.replay.bit_exact
@@ -253,7 +240,6 @@ def _replica_panel(ax, t, fw, replica, report) -> None:
             ax.axvline(fm["t_rel_s"], color="crimson", lw=1.2, ls=":", label=f"first difference: step {fm['step']}")
         _spans(ax, t, covered & ~exact, "not bit-exact", color="crimson", alpha=0.08)
     ax.set_ylabel("firmware − replica [deg]")
-    ax.set_title("firmware − ST-Mahony replica", fontsize=10, loc="left")
 
 
 def _throttle_twin(ax, t, thr, min_thr) -> None:
@@ -297,8 +283,7 @@ def _difference_bars(ax, ax_legend, report) -> None:
             ax.text(v + vmax * 0.01, yy, txt, va="center", fontsize=6.5)
     ax.set_yticks(y, [tr.label for tr in avail], fontsize=8)
     ax.invert_yaxis()
-    ax.set_xlim(0, vmax * 1.25 if vmax > 0 else 1.0)
-    ax.set_xlabel("difference from the firmware [deg]")
+    ax.set(xlim=(0, vmax * 1.25 if vmax > 0 else 1.0), xlabel="difference from the firmware [deg]")
     ax.set_title("vs firmware: RMS and max |Δ|", fontsize=10, loc="left")
     hb, lb = ax.get_legend_handles_labels()
     ax_legend.legend(hb, lb, loc="upper left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=7.5, frameon=False,
@@ -330,12 +315,11 @@ def _summary_lines(report, fs: dict) -> list[str]:
 
 
 def differences_figure(tel, report, *, title: str | None = None):
-    """Each estimator minus the firmware over time (degrees, its RMS in its label), pitch (thx, about x) above
-    roll (thy, about y); accel-only tilt thin and grey."""
+    """Each estimator minus the firmware over time, degrees: pitch (thx, about x) above roll (thy, about y)."""
     plt = require_matplotlib()
     a = tel.attitude
     t = np.asarray(report.t_rel_s, dtype=np.float64)
-    fw = {"pitch": np.degrees(np.asarray(a.thx_rad, np.float64)), "roll": np.degrees(np.asarray(a.thy_rad, np.float64))}
+    fw = _degrees(a.thx_rad, a.thy_rad)
     fig, axes = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
     for ax, what, key in ((axes[0], "pitch (thx, about x)", "pitch"), (axes[1], "roll (thy, about y)", "roll")):
         for name, label, vals, (c, lw, ls, z) in _estimate_traces(report):
@@ -361,9 +345,8 @@ def plot_flight_control(tel, out_png, *, title: str | None = None) -> Path:
 
 
 def flight_control_figure(tel, *, title: str | None = None):
-    """The flight-control frames as Betaflight's Blackbox shows a flight: per axis the remote's target against
-    the firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1 with its P and I terms, the
-    motors and the inner loop's s2."""
+    """The flight-control frames as Betaflight's Blackbox shows them: per axis the remote's target against the
+    firmware's angle (pitch = thx about x, roll = thy about y), the outer loop's s1, P and I, the motors and s2."""
     plt = require_matplotlib()
     a, fc = tel.attitude, tel.fc
     t0 = float(a.t_fw_s[0]) if len(a) else 0.0
@@ -393,27 +376,21 @@ def flight_control_figure(tel, *, title: str | None = None):
         if i < 2:
             ax.plot(tf, s1[:, i] - p[:, i], color="tab:green", lw=1.0, label="I = s1 − P (ki1 = 0)")
         _label_panel(ax, "rate setpoint [rad/s]", f"outer loop {name.split(' ')[0]} ({'xyz'[i]}): s1, P, I")
+        ax.legend(fontsize=7, loc="upper right")
     axes[0, 0].legend(fontsize=8, loc="upper right")
-    for i in range(3):
-        axes[i, 1].legend(fontsize=7, loc="upper right")
     for ax, values, labels, unit, what in (
         (axes[3, 0], fc.motor_pwm, [m.label for m in MOTORS], "PWM [counts of 2000]", "motors (motor_pwm)"),
         (axes[3, 1], fc.inner_s2_pwm, ("x_s2 pitch", "y_s2 roll", "z_s2 yaw"), "PWM counts", "inner loop outputs s2"),
     ):
         for k, lab in enumerate(labels):
             ax.plot(tf, np.asarray(values, np.float64)[:, k], lw=1.0, label=lab)
-        ax.set_ylabel(unit)
-        ax.set_title(what, fontsize=10, loc="left")
+        _label_panel(ax, unit, what)
         ax.legend(fontsize=7, ncol=len(labels) // 2, loc="upper right")
-        ax.grid(True, alpha=0.3)
         ax.set_xlabel("firmware time since the first frame [s]")
     every = int(np.max(fc.fc_every)) if len(fc) else 0
-    src = (getattr(tel, "source", None) or {}).get("path") or "capture"
-    fig.suptitle(
-        title
-        or f"steval compare: {Path(str(src)).name} — flight control ({len(fc)} frames, one every {every} AHRS steps)",
-        fontsize=11,
-    )
+    src = Path(str((getattr(tel, "source", None) or {}).get("path") or "capture")).name
+    default = f"steval compare: {src} — flight control ({len(fc)} frames, one every {every} AHRS steps)"
+    fig.suptitle(title or default, fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
@@ -426,12 +403,8 @@ def _variant_text(variant: dict) -> str:
             out.append(f"kp_ground={v[0]:g}, kp_flight={v[1]:g}")
         elif k == "defaults":
             out.append("the firmware defaults")
-        elif isinstance(v, bool):
-            out.append(f"{k}={'on' if v else 'off'}")
-        elif isinstance(v, float):
-            out.append(f"{k}={v:.7g}")
-        else:
-            out.append(f"{k}={v}")
+        else:  # on/off, a release's name, a float to 7 digits
+            out.append(f"{k}={v:.7g}" if isinstance(v, float) else f"{k}={setting_text(v)}")
     return ", ".join(out)
 
 
@@ -456,8 +429,7 @@ def _run_name(res) -> str:
 
 
 def simulation_figure(result, *, title: str | None = None, compare=()):
-    """eax (pitch, about x), eay (roll, about y), eaz (yaw, about z) in degrees over the iterations of a
-    ``steval simulate`` run, the inputs in the title; ``compare``: ``(label, result)`` of other runs, overlaid."""
+    """eax (pitch, about x), eay (roll), eaz (yaw) in degrees over a ``simulate`` run; ``compare``: runs overlaid."""
     plt = require_matplotlib()
     res = result
     k = np.asarray(res.step, dtype=np.int64)
@@ -509,8 +481,7 @@ def simulation_figure(result, *, title: str | None = None, compare=()):
         mg = np.mean(np.asarray(res.gyro_mdps, np.float64), axis=0)
         ma = np.mean(np.asarray(res.acc_mg, np.float64), axis=0)
         inputs = f"mean gyro {vec(np.round(mg, 1))} mdps, acc {vec(np.round(ma, 1))} mg"
-    fig.suptitle(
-        title or f"steval simulate: {_run_name(res)}, {res.iterations} iterations\n{inputs}{noise}", fontsize=10
-    )
+    default = f"steval simulate: {_run_name(res)}, {res.iterations} iterations\n{inputs}{noise}"
+    fig.suptitle(title or default, fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.96 - 0.035 * ((len(runs) + 2) // 3) if compare else 0.96))
     return fig

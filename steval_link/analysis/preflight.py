@@ -1,12 +1,10 @@
 """The preflight wiring check (``steval preflight``): guided hand moves checked against the firmware's own chain.
 
-Props off, armed at idle throttle (``gTHR`` just above ``MIN_THR``) or with the motors off, the user makes three
-moves, each out, hold, back (:data:`MOVES`): tilt right (roll, right side down: ``thy`` > 0), nose up (pitch:
-``thx`` > 0), turn right (yaw, clockwise from above: gyro z < 0). Each move is found in the gyro (bursts of rotation,
-paired out/back) and checked link by link: the sensor (axis and sign of the gyro, then of ``thx``/``thy``), the
-controller (``s1``, ``s2`` push back), the motors (each speeds up or slows down as the mixer says) and, over every
-frame with the motors on, that each output carries its own mixer line (a swapped motor order is named).
-Spin directions cannot be seen in the data: the report says what the mixer expects. At rest acc z must be ≈ +1 g."""
+Props off, armed at idle throttle or with the motors off, the user makes three moves (:data:`MOVES`), each out,
+hold, back: tilt right (roll: ``thy`` > 0), nose up (pitch: ``thx`` > 0), turn right (gyro z < 0). Each is found in
+the gyro and checked link by link: the sensor's axis and sign, then ``thx``/``thy``; the controller (``s1``, ``s2``
+push back); each motor against the mixer, and that each output carries its own mixer line (a swapped motor order is
+named). Spin directions cannot be seen in the data: the report says what the mixer expects. At rest acc z ≈ +1 g."""
 
 from __future__ import annotations
 
@@ -63,34 +61,23 @@ class PreflightReport:
         return not self.problems
 
     def text(self) -> str:
-        verdict = (
-            "PASS: every check is OK."
-            if self.passed
-            else f"FAIL: {len(self.problems)} problem{'s' if len(self.problems) > 1 else ''}:"
-        )
-        out = list(self.lines) + ["", verdict] + [f"  - {p}" for p in self.problems]
-        return "\n".join(out)
+        n = len(self.problems)
+        verdict = "PASS: every check is OK." if self.passed else f"FAIL: {n} problem{'s' if n > 1 else ''}:"
+        return "\n".join([*self.lines, "", verdict] + [f"  - {p}" for p in self.problems])
 
 
 def _smooth(x: np.ndarray, n: int) -> np.ndarray:
-    if n <= 1 or len(x) < n:
-        return x
-    k = np.ones(n) / n
-    return np.convolve(x, k, mode="same")
+    return x if n <= 1 or len(x) < n else np.convolve(x, np.ones(n) / n, mode="same")
 
 
 def _bursts(t_s: np.ndarray, gyro_dps: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
     """(start, end, integrated rotation deg (3,)) of each burst of rotation, in order."""
-    mag = _smooth(np.linalg.norm(gyro_dps, axis=1), 16)
-    active = mag > _BURST_DPS
-    # merge gaps shorter than 0.25 s
-    idx = np.flatnonzero(active)
+    idx = np.flatnonzero(_smooth(np.linalg.norm(gyro_dps, axis=1), 16) > _BURST_DPS)
     if len(idx) == 0:
         return []
-    dt = np.diff(t_s, prepend=t_s[0])
-    dt = np.clip(dt, 0.0, 0.05)
+    dt = np.clip(np.diff(t_s, prepend=t_s[0]), 0.0, 0.05)
     out = []
-    for run in np.split(idx, np.flatnonzero(np.diff(t_s[idx]) > 0.25) + 1):
+    for run in np.split(idx, np.flatnonzero(np.diff(t_s[idx]) > 0.25) + 1):  # gaps under 0.25 s merged
         a, b = run[0], run[-1] + 1
         rot = (gyro_dps[a:b] * dt[a:b, None]).sum(axis=0)
         if np.linalg.norm(rot) >= _MIN_MOVE_DEG:
@@ -112,8 +99,8 @@ def _pair_moves(bursts):
     return pairs
 
 
-def _fmt(v: float, unit: str = "°") -> str:
-    return f"{v:+.1f}{unit}"
+def _fmt(v: float) -> str:
+    return f"{v:+.1f}°"
 
 
 def check_preflight(tel, source: str = "") -> PreflightReport:
@@ -209,8 +196,7 @@ def _check_moves(rep: PreflightReport, att, gyro: np.ndarray, fc) -> bool:
 
 
 def _axis_turned(values: np.ndarray, axis: int, sign: int) -> tuple[int, str]:
-    """The axis with the largest ``values`` and how it compares with the expected ``axis`` turned by ``sign``:
-    "ok", "reversed" (that axis, the other way) or "swapped" (another axis)."""
+    """The dominant axis of ``values`` and "ok", "reversed" (the other way) or "swapped" (another axis)."""
     dom = int(np.argmax(np.abs(values)))
     if dom != axis:
         return dom, "swapped"
@@ -256,19 +242,16 @@ def _check_sensor(rep: PreflightReport, mv: Move, rot: np.ndarray, att, a0: int,
                 f"  attitude: follows the gyro's fault ({txt}); the firmware's motors would push the "
                 "drone over instead of levelling it."
             )
-        elif turned == "reversed":
+        else:
             rep.problems.append(
                 f"{mv.name}: the firmware's {_ANGLE_NAMES[mv.axis]} moved the wrong way "
                 f"({_fmt(d[ddom])}): it believes the drone tilted the other way; its motors would "
                 "push the drone over instead of levelling it."
-            )
-            rep.lines.append(f"  attitude: REVERSED ({txt}).")
-        else:
-            rep.problems.append(
-                f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
+                if turned == "reversed"
+                else f"{mv.name}: the firmware's {_ANGLE_NAMES[ddom]} moved ({_fmt(d[ddom])}) instead of "
                 f"its {_ANGLE_NAMES[mv.axis]}: pitch and roll are swapped."
             )
-            rep.lines.append(f"  attitude: SWAPPED ({txt}).")
+            rep.lines.append(f"  attitude: {turned.upper()} ({txt}).")
 
 
 def _fc_window(fc, steps: np.ndarray, a: int, b: int) -> np.ndarray:
@@ -280,9 +263,8 @@ def _fc_window(fc, steps: np.ndarray, a: int, b: int) -> np.ndarray:
 
 def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int, b0: int, steps) -> None:
     pre = _fc_window(fc, steps, max(a0 - 160, 0), a0)
+    # yaw while turning: below MIN_THR the firmware resets its yaw angle and target, so only the rate loop sees it
     if mv.axis == 2:
-        # yaw: while turning (below MIN_THR the firmware resets its yaw angle and target, so a held turn shows
-        # nothing; the rate loop sees the turn itself)
         hold = _fc_window(fc, steps, a0, a1)
     else:
         hold = _fc_window(fc, steps, a1 + (b0 - a1) // 4, a1 + 3 * (b0 - a1) // 4 + 1)
@@ -293,12 +275,11 @@ def _check_controller(rep: PreflightReport, mv: Move, fc, att, a0: int, a1: int,
     name = "xyz"[ax]
     want = -mv.sign  # the controller must push back
     s1 = float(np.mean(fc.outer_s1_radps[hold, ax]))
-    ok1 = np.sign(s1) == want and abs(s1) > 1e-3
-    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
-        ok1 = True  # below MIN_THR the firmware holds its yaw angle and target at 0: z_s1 is 0
+    idle_yaw = ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR)  # the firmware holds yaw and its target at 0
+    ok1 = idle_yaw or (np.sign(s1) == want and abs(s1) > 1e-3)
     armed = bool(np.all(fc.fc_flags[hold] & 1))
     line = f"  controller: outer {name}_s1 {s1:+.2f} rad/s"
-    if ax == 2 and not np.all(fc.rc[hold, 3] >= C.MIN_THR):
+    if idle_yaw:
         line += " (0 below MIN_THR: the firmware resets its yaw angle and target)"
     if armed:
         ds2 = float(np.mean(fc.inner_s2_pwm[hold, ax]) - (np.mean(fc.inner_s2_pwm[pre, ax]) if len(pre) else 0.0))

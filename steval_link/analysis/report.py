@@ -1,6 +1,6 @@
-"""What ``steval compare`` reports (:class:`ComparisonReport` and its parts, JSON-friendly with ``as_dict``) and
-its text form (:func:`format_report`).
-"""
+"""What ``steval compare`` reports (:class:`ComparisonReport` and its parts, JSON-friendly with ``as_dict``), its
+text form (:func:`format_report`), and the :class:`Coverage` of a score (the share of the scored rows an estimate
+covered)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.analysis.coverage import percent
 from steval_link.estimators.firmware_replay import FirmwareReplay, release_sentence
 
 #: Trace name of the seeded replica (``st-mahony`` is the registry estimator run from power-up, if requested).
@@ -66,6 +65,95 @@ def json_number(x) -> float | None:
 
 
 @dataclass(frozen=True)
+class Coverage:
+    """How much of the scored rows (movement with finite truth) one estimate covered (finite): ``diverged_at_step``
+    starts its final non-finite run (``diverged_at_s``: its time, s), ``why`` it covered none. An RMSE over the finite
+    rows alone flatters a filter that gives up half-way: an incomplete cell is marked, has no mean and is not ranked."""
+
+    scored_rows: int
+    covered_rows: int
+    diverged_at_step: int | None = None
+    diverged_at_s: float | None = None
+    why: str | None = None
+
+    @property
+    def scored_fraction(self) -> float | None:
+        """Covered / scored rows (None: nothing to score)."""
+        return self.covered_rows / self.scored_rows if self.scored_rows else None
+
+    @property
+    def complete(self) -> bool:
+        """Every scored row covered (and at least one)."""
+        return self.scored_rows > 0 and self.covered_rows == self.scored_rows
+
+    def to_json(self) -> dict:
+        """The JSON fields: ``scored_fraction``, ``diverged_at_step``, ``diverged_at_s``, ``no_score_reason``."""
+        f = self.scored_fraction
+        return {
+            "scored_fraction": None if f is None else round(f, 4),
+            "scored_rows": self.scored_rows,
+            "covered_rows": self.covered_rows,
+            "diverged_at_step": self.diverged_at_step,
+            "diverged_at_s": None if self.diverged_at_s is None else round(self.diverged_at_s, 3),
+            "no_score_reason": self.why,
+        }
+
+    def cell(self, rmse_text: str) -> str:
+        """A table cell: the RMSE, marked with its coverage when incomplete (``2.851 (63 %)``)."""
+        if self.complete:
+            return rmse_text
+        if self.covered_rows == 0:
+            return "no score"
+        return f"{rmse_text} ({percent(self.scored_fraction)})"
+
+    def sentence(self) -> str | None:
+        """What is missing, in words (None when complete): the share covered, where it diverged, or why no score."""
+        if self.complete:
+            return None
+        if self.covered_rows == 0:
+            return f"no score: {self.why}"
+        text = f"scored on {percent(self.scored_fraction)} of the {self.scored_rows} movement rows with truth"
+        if self.diverged_at_step is not None:
+            text += f"; diverged at step {self.diverged_at_step}{_at(self.diverged_at_s)} (non-finite from there on)"
+        return text
+
+
+def percent(fraction: float | None) -> str:
+    """``63 %``, rounded down (99.97 % is not called 100 %)."""
+    return "—" if fraction is None else f"{math.floor(fraction * 100 + 1e-9):d} %"
+
+
+def _at(t_s: float | None) -> str:
+    return "" if t_s is None or not math.isfinite(t_s) else f", t = {t_s:.2f} s"
+
+
+def coverage_of(estimate_ok, scored, steps=None, t_s=None) -> Coverage:
+    """The coverage of one estimate: its finite rows among the ``scored`` ones (``steps`` default: row index)."""
+    ok = np.asarray(estimate_ok, bool).reshape(-1)
+    sc = np.asarray(scored, bool).reshape(-1)
+    n = ok.shape[0]
+    step_of = np.arange(n) if steps is None else np.asarray(steps).reshape(-1)
+    scored_rows = int(np.count_nonzero(sc))
+    covered = int(np.count_nonzero(sc & ok))
+    finite_at = np.flatnonzero(ok)
+    first_bad = int(finite_at[-1]) + 1 if finite_at.size else 0
+    diverged = first_bad < n and bool(sc[first_bad:].any())
+    at_step = int(step_of[first_bad]) if diverged else None
+    at_s = float(t_s[first_bad]) if diverged and t_s is not None else None
+    why = None
+    if covered == 0:
+        if scored_rows == 0:
+            why = "no movement row with ground truth"
+        elif not finite_at.size:
+            why = f"its estimate is not finite on any of the {n} steps"
+        elif diverged and not sc[:first_bad].any():
+            why = f"it diverged at step {at_step}{_at(at_s)}, before the first movement row with truth"
+        else:
+            why = "its estimate is not finite on any movement row with truth"
+    return Coverage(scored_rows, covered, at_step, at_s, why)
+
+
+@dataclass(frozen=True)
 class AngleStats:
     """Differences of one angle against the firmware's, in degrees, over ``n`` rows where both are finite."""
 
@@ -87,9 +175,8 @@ class AngleStats:
 
 @dataclass(frozen=True)
 class TraceComparison:
-    """One estimator's angles against the firmware's: ``pitch`` (thx, about x) and ``roll`` (thy, about y)
-    differences in degrees; ``available`` False when it could not run (``note`` says why); ``n_invalid`` rows it did not
-    cover (excluded)."""
+    """One estimator's ``pitch`` (thx, about x) and ``roll`` (thy, about y) differences from the firmware, degrees;
+    ``available`` False when it could not run (``note`` says why)."""
 
     name: str
     label: str
@@ -100,30 +187,15 @@ class TraceComparison:
     note: str = ""
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "label": self.label,
-            "available": self.available,
-            "pitch_thx": self.pitch.as_dict(),
-            "roll_thy": self.roll.as_dict(),
-            "n_invalid": self.n_invalid,
-            "note": self.note,
-        }
+        renamed = {"pitch": "pitch_thx", "roll": "roll_thy"}
+        return {renamed.get(k, k): v.as_dict() if isinstance(v, AngleStats) else v for k, v in vars(self).items()}
 
 
 @dataclass(frozen=True)
 class ReplicaComparison:
-    """The bit-exact replica against the firmware.
-
-    Attributes:
-        rows: binary attitude rows. seeded: rows with a known replica state. bit_exact: seeded rows whose q, thx and thy
-            carry the firmware's bits. seeds: every (re)start ``{"row", "step", "source", "status_row"}``.
-        first_mismatch: ``{"row", "step", "t_fw_s", "t_rel_s"}`` of the first seeded row that differs, or None.
-        settings: the replica's settings. diagnosis: sentences saying why it disagrees.
-        matching_variant: the changed settings that reproduce the firmware, or None; matching_bit_exact: their
-            bit-exact rows over the capture. unseeded_reason: why no row was seeded.
-        divergence: where the firmware's q left the unit sphere (:func:`~.diagnosis.find_divergence`).
-        filter: the ST release the replica ran; filter_from: who named it; variant_bit_exact: steps per variant."""
+    """The bit-exact replica against the firmware over ``rows`` binary rows: ``seeded`` with a state, ``bit_exact``
+    with the firmware's q, thx and thy bits; the first differing row; ``matching_variant``, the changed settings that
+    reproduce the firmware (None: none found); ``filter``, the ST release the replica ran."""
 
     rows: int
     seeded: int
@@ -178,14 +250,8 @@ class ReplicaComparison:
 
 @dataclass(frozen=True)
 class RateStats:
-    """Timing and link health of a capture.
-
-    Attributes:
-        duration_s: firmware time of the attitude rows (summed between restarts). rate_hz: rows per second.
-        step_rate_hz: AHRS steps per second (161.5 Hz). period_*_ms: Δt_fw between consecutive AHRS steps, ms.
-        seq_gaps, frames_missing: frames lost on the link. tx_dropped: frames the firmware's TX queue could not take
-            (None without status frames). crc_failures: damaged frames.
-        ahrs_cycles_min/mean/max, cpu_hz: ``ahrs_fusion_ag`` cost from the status frames (None without them)."""
+    """Timing and link health of a capture: ``duration_s`` of firmware time (summed between restarts), rates, periods
+    between consecutive steps, frames lost (TX queue: None without status frames) and the ``ahrs_fusion_ag`` cost."""
 
     duration_s: float
     rate_hz: float | None
@@ -218,8 +284,7 @@ class RateStats:
 
 @dataclass
 class ComparisonReport:
-    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json``); the arrays
-    behind it (``t_rel_s``, the replica replay, the estimates) are kept for the plots."""
+    """Everything ``steval compare`` reports about one capture (``as_dict()`` is its ``--json``), arrays for plots."""
 
     source: dict[str, Any]
     rows: int
@@ -321,12 +386,10 @@ def _filter_lines(fs: dict | None) -> list[str]:
         return ["filter settings: no status frames (the replica assumes the firmware defaults)"]
     if fs["from"] != "status frames":
         return [f"filter (text-mode status lines): ki {fmt_number(fs['ki'], 'g')}, flags {fs['flags']}"]
-    diff = fs["differs_from_defaults"]
-    tail = "firmware defaults"
-    if diff:
-        tail = "differs from defaults: " + ", ".join(
-            f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in diff.items()
-        )
+    changed = [
+        f"{k} {setting_text(v[0])} (default {setting_text(v[1])})" for k, v in fs["differs_from_defaults"].items()
+    ]
+    tail = "differs from defaults: " + ", ".join(changed) if changed else "firmware defaults"
     lines = [
         f"filter (status frames): kp_ground {fs['kp_ground']:g}, kp_flight {fs['kp_flight']:g}, "
         f"ki {fs['ki']:g}, dt {fs['dt_s']:g} s, min_thr {fs['min_thr']}, correction "
@@ -423,9 +486,7 @@ def _truth_lines(truth: dict | None, w: int) -> list[str]:
 
 
 def estimator_summary(name: str, est, tel) -> dict[str, Any]:
-    """What one host estimator did over a capture (``replay -e``, ``emulate -e``): its valid rows, the first step
-    it was invalid (None: never), and its RMS difference from the firmware's pitch (thx) and roll (thy), degrees,
-    over the rows where both are finite."""
+    """One host estimator over a capture: valid rows, first invalid step, RMS difference (deg) from thx/thy."""
     a = tel.attitude
     valid = np.asarray(est.valid, bool) & np.isfinite(est.thx_rad) & np.isfinite(est.thy_rad)
     bad = np.flatnonzero(~valid)

@@ -1,12 +1,9 @@
-"""Flights side by side (``steval compare A.stv B.stv ...``): two or more captures on one time axis, labelled by
-what differs between them ("ki 0.1" against "ki 1, correction off"), each measured against its own
-accelerometer-only tilt.
+"""Flights side by side (``steval compare A.stv B.stv ...``) on one time axis (firmware time from each first frame,
+or the gyro cross-correlated), labelled by what differs ("ki 0.1" against "ki 1, correction off").
 
-Aligned by firmware time from each first frame, or by motion (the gyro cross-correlated with the first flight's).
-Figures per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt
-in the still phases, the drift (the mean error in the last still phase) and its rate (deg/min); each later flight
-minus the first. Mismatches (durations, BLE against serial, lost frames, a truncated capture) are notes, not errors.
-A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
+Per flight, degrees: RMS of pitch (thx, about x, nose up +) and roll (thy, about y) against accel-only tilt in the
+still phases, the drift (mean error in the last still phase) and its rate (deg/min); each later flight minus the
+first. Mismatches are notes, not errors. A BLE capture's angles are the ST-Mahony replica's on its raw samples."""
 
 from __future__ import annotations
 
@@ -28,6 +25,7 @@ from steval_link.estimators.st_mahony import MahonySettings
 from steval_link.link import protocol as P
 
 ALIGN_MODES = ("time", "motion")
+_MOTION_HOW = "motion (gyro cross-correlation with the first flight)"
 #: A row is still when the gyro's norm is below this (deg/s) ...
 STILL_GYRO_DPS = 3.0
 #: ... and the accelerometer's norm within this of 1000 mg ...
@@ -41,8 +39,6 @@ DURATION_TOLERANCE_S = 1.0
 #: The motion alignment searches lags up to this fraction of the shorter flight.
 MAX_LAG_FRACTION = 0.5
 
-
-# -- labels: what differs between the flights (settings, else header facts, else file names) ---------------
 
 #: Settings in label order, with their names in a label (a label names a setting that differs from its default).
 _SETTING_WORDS = {
@@ -65,10 +61,16 @@ def setting_f32(x) -> float:
     return float(str(np.float32(x)))
 
 
+def _setting_values(s: MahonySettings) -> dict[str, Any]:
+    """A filter's settings in label order, the float32 ones as their shortest decimals."""
+    keys = ("ki", "correction", "kp_ground", "kp_flight", "min_thr", "dt_s", "variant")
+    return {
+        k: setting_f32(getattr(s, k)) if k in ("ki", "kp_ground", "kp_flight", "dt_s") else getattr(s, k) for k in keys
+    }
+
+
 def _defaults() -> dict[str, Any]:
-    d = MahonySettings()
-    floats = {k: setting_f32(getattr(d, k)) for k in ("ki", "kp_ground", "kp_flight", "dt_s")}
-    return floats | {"correction": True, "min_thr": int(d.min_thr), "variant": d.variant} | _NO_FLAGS
+    return _setting_values(MahonySettings()) | _NO_FLAGS
 
 
 def _word(key: str, value) -> str:
@@ -123,28 +125,16 @@ def labels_by_difference(flights: Sequence) -> list[str]:
     for i, f in enumerate(flights):
         if f.settings and f.settings.get("changes"):
             labels[i] = (labels[i] + ", " if labels[i] else "") + f"{f.settings['changes']} changes in flight"
-    names = [f.path.name for f in flights]
-    clash = [not labels[i] or labels.count(labels[i]) > 1 for i in range(n)]
-    labels = [
-        f"{labels[i]} ({names[i]})" if clash[i] and labels[i] else (names[i] if clash[i] else labels[i])
-        for i in range(n)
-    ]
-    clash = [labels.count(labels[i]) > 1 for i in range(n)]  # the same file twice: its position tells them apart
-    labels = [f"{labels[i]} #{i + 1}" if clash[i] else labels[i] for i in range(n)]
-    return labels
+    clash = [not label or labels.count(label) > 1 for label in labels]  # a clash or no label: the file's name
+    labels = [(f"{lb} ({f.path.name})" if lb else f.path.name) if c else lb for lb, c, f in zip(labels, clash, flights)]
+    # the same file twice: its position tells them apart
+    return [f"{label} #{i + 1}" if labels.count(label) > 1 else label for i, label in enumerate(labels)]
 
 
 @dataclass
 class Flight:
-    """One capture on the common time axis.
-
-    Attributes:
-        path, label (the plot's, the viewer's and the JSON's name). kind: "serial" or "ble".
-        angles: "firmware" (the drone's thx/thy) or "st-mahony replica" (BLE).
-        t_s: (N,) s since the first frame, minus the motion lag. thx_rad, thy_rad: (N,) pitch (about x), roll (about y).
-        acc_mg, gyro_mdps: (N, 3) float32. q_wxyz: (N, 4) the attitude for the 3D view.
-        accel_thx_rad, accel_thy_rad: (N,) accel-only tilt. still: (N,) bool, the still rows.
-        settings: the first status frame's filter settings (None without). facts: capture-header facts."""
+    """One capture on the common time axis: ``t_s`` (N,) s since the first frame minus the lag; ``thx_rad``/``thy_rad``
+    pitch (about x)/roll (about y), ``angles`` "firmware" or "st-mahony replica"; the first status's settings."""
 
     path: Path
     label: str
@@ -178,8 +168,7 @@ _FLIGHT_KEYS = "label path kind angles settings facts rows duration_s frames_los
 
 @dataclass
 class SideBySide:
-    """Flights on one time axis (``flights[0]`` is the reference of the differences), how they were aligned, the
-    differences of each later flight from the first, and the mismatch notes. ``as_dict()`` is ``--json``."""
+    """Flights on one time axis, each later one's differences from ``flights[0]`` and notes; ``as_dict()`` is --json."""
 
     flights: list[Flight]
     align: str
@@ -203,9 +192,6 @@ class SideBySide:
         }
 
 
-# -- one flight ------------------------------------------------------------------------------------------------
-
-
 def _settings_of_status(tel) -> dict[str, Any] | None:
     s = tel.status
     if not len(s):
@@ -226,13 +212,7 @@ def _settings_of_status(tel) -> dict[str, Any] | None:
     changes = int((filter_settings_report(tel) or {}).get("changes") or 0)
     return {
         "from": "status frames",
-        "ki": setting_f32(first.ki),
-        "correction": bool(first.correction),
-        "kp_ground": setting_f32(first.kp_ground),
-        "kp_flight": setting_f32(first.kp_flight),
-        "min_thr": int(first.min_thr),
-        "dt_s": setting_f32(first.dt_s),
-        "variant": first.variant,
+        **_setting_values(first),
         "text_mode": bool(flags & P.FLAG_TEXT_MODE),
         "inflight_tuning": bool(flags & P.FLAG_INFLIGHT_TUNING),
         "flags": flags,
@@ -288,8 +268,7 @@ def flight_of_telemetry(path, tel, warnings: Sequence[str] = ()) -> Flight:
 
 
 def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()) -> Flight:
-    """A BLE capture's telemetry (the sender's samples on one grid, ``tel.link`` its facts) and the ST-Mahony
-    replica's estimate over its rows (the stock firmware sends no angles); None: the rows' own (euler layout)."""
+    """A BLE capture's telemetry and the ST-Mahony replica's estimate over its rows (None: the rows' own angles)."""
     a = tel.attitude
     t = a.t_fw_s - a.t_fw_s[0] if len(a) else a.t_fw_s
     lost = tel.link.cadence.dropped if tel.link.cadence is not None else 0
@@ -301,12 +280,10 @@ def flight_of_ble(path, tel, replica_estimate=None, warnings: Sequence[str] = ()
 def still_mask(acc_mg: np.ndarray, gyro_mdps: np.ndarray, t_s: np.ndarray) -> np.ndarray:
     """(N,) True on the rows of still phases: gyro norm < :data:`STILL_GYRO_DPS`, accelerometer norm within
     :data:`STILL_ACC_MG` of 1000 mg, in runs lasting at least :data:`STILL_MIN_S`."""
-    acc = np.asarray(acc_mg, np.float64)
-    gyro = np.asarray(gyro_mdps, np.float64)
+    gyro = np.linalg.norm(np.asarray(gyro_mdps, np.float64), axis=1)
+    acc = np.linalg.norm(np.asarray(acc_mg, np.float64), axis=1)
     with np.errstate(invalid="ignore"):
-        quiet = (np.linalg.norm(gyro, axis=1) < STILL_GYRO_DPS * 1000.0) & (
-            np.abs(np.linalg.norm(acc, axis=1) - 1000.0) < STILL_ACC_MG
-        )
+        quiet = (gyro < STILL_GYRO_DPS * 1000.0) & (np.abs(acc - 1000.0) < STILL_ACC_MG)
     out = np.zeros_like(quiet)
     t = np.asarray(t_s, np.float64)
     for a, b in true_runs(quiet):
@@ -335,9 +312,6 @@ def _still_figures(f: Flight) -> dict[str, Any]:
                 fig["drift_rate_deg_per_min"] = json_number(np.polyfit(t, e, 1)[0] * 60.0)
         out[axis] = fig
     return out
-
-
-# -- alignment -------------------------------------------------------------------------------------------------
 
 
 def _grid(t_s: np.ndarray, gyro_mdps: np.ndarray, dt: float) -> np.ndarray:
@@ -373,20 +347,15 @@ def motion_lag_s(
     return float(m * dt), (float(np.dot(x, y)) / norm if norm > 0 else 0.0)
 
 
-# -- mismatches ------------------------------------------------------------------------------------------------
-
-
 def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
     notes: list[str] = []
-    durations = [f.duration_s for f in flights]
-    lo, hi = min(durations), max(durations)
+    lo, hi = min(f.duration_s for f in flights), max(f.duration_s for f in flights)
     if hi - lo > max(DURATION_TOLERANCE_S, 0.05 * hi):
         each = ", ".join(f"{f.label} {f.duration_s:.1f} s" for f in flights)
         notes.append(f"durations differ ({each}): the differences cover the overlap only.")
     kinds = {f.kind for f in flights}
     if len(kinds) > 1:
-        ble = [f.label for f in flights if f.kind == "ble"]
-        ser = [f.label for f in flights if f.kind == "serial"]
+        ble, ser = ([f.label for f in flights if f.kind == k] for k in ("ble", "serial"))
         notes.append(
             f"{', '.join(ble)} is a BLE capture and {', '.join(ser)} a serial one: the BLE angles are the "
             "host's ST-Mahony replica on raw ISR samples (dt from the 8 ms ticks), not the drone's own."
@@ -398,15 +367,11 @@ def _mismatch_notes(flights: Sequence[Flight]) -> list[str]:
             notes.append(
                 f"{f.label}: {f.frames_lost} frames lost on the link; its lines are interpolated across the gaps."
             )
-        for w in f.warnings:
-            notes.append(f"{f.label}: {w}")
+        notes += [f"{f.label}: {w}" for w in f.warnings]
     text = [f.label for f in flights if f.settings and f.settings.get("text_mode")]
     if text and len(text) < len(flights):
         notes.append(f"{', '.join(text)}: text-mode rows (rounded angles, not every step) against binary frames.")
     return notes
-
-
-# -- all together ----------------------------------------------------------------------------------------------
 
 
 def _difference(ref: Flight, f: Flight) -> dict[str, Any]:
@@ -433,24 +398,17 @@ def difference_series(ref: Flight, f: Flight) -> tuple[np.ndarray, np.ndarray, n
     return t, dx, dy
 
 
-def side_by_side(
-    flights: Sequence[Flight],
-    *,
-    align: str = "time",
-    labels: Sequence[str] | None = None,
-) -> SideBySide:
-    """Put ``flights`` on one time axis, label them (``labels`` first, the rest derived), measure each against
-    its accel-only tilt and each later one against the first. ValueError: an unknown ``align`` or an empty flight."""
+def side_by_side(flights: Sequence[Flight], *, align: str = "time", labels: Sequence[str] | None = None) -> SideBySide:
+    """Put ``flights`` on one time axis, label them, and measure each against its accel-only tilt and the first."""
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     flights = list(flights)
-    for f in flights:
-        if f.rows == 0:
-            raise ValueError(f"{f.path} has no rows")
-    derived = labels_by_difference(flights)
+    empty = [f.path for f in flights if f.rows == 0]
+    if empty:
+        raise ValueError(f"{empty[0]} has no rows")
     given = list(labels or [])
-    for i, f in enumerate(flights):
-        f.label = given[i] if i < len(given) else derived[i]
+    for i, (f, derived) in enumerate(zip(flights, labels_by_difference(flights))):
+        f.label = given[i] if i < len(given) else derived
     notes: list[str] = []
     if align == "motion":
         ref = flights[0]
@@ -464,19 +422,14 @@ def side_by_side(
                     f"{f.label}: the gyro correlates weakly with {ref.label} ({r:.2f}): the motions may "
                     "not be the same, the lag may be wrong."
                 )
-    tilt = AccelTilt()
     for f in flights:
-        est = tilt.run(f.acc_mg, f.gyro_mdps)
-        f.accel_thx_rad = np.asarray(est.thx_rad, np.float64)
-        f.accel_thy_rad = np.asarray(est.thy_rad, np.float64)
+        est = AccelTilt().run(f.acc_mg, f.gyro_mdps)
+        f.accel_thx_rad, f.accel_thy_rad = np.asarray(est.thx_rad, np.float64), np.asarray(est.thy_rad, np.float64)
         f.still = still_mask(f.acc_mg, f.gyro_mdps, f.t_s)
         f.figures = _still_figures(f)
-    notes = _mismatch_notes(flights) + notes
-    diffs = [_difference(flights[0], f) for f in flights[1:]]
-    return SideBySide(flights, align, diffs, notes)
-
-
-# -- text ------------------------------------------------------------------------------------------------------
+    return SideBySide(
+        flights, align, [_difference(flights[0], f) for f in flights[1:]], _mismatch_notes(flights) + notes
+    )
 
 
 def _settings_text(s: dict[str, Any] | None) -> str:
@@ -493,11 +446,7 @@ def _settings_text(s: dict[str, Any] | None) -> str:
 
 def format_side_by_side(r: SideBySide) -> list[str]:
     """The text form: flights, their figures against accel-only tilt, the differences, the notes."""
-    how = (
-        "firmware time from each capture's first frame"
-        if r.align == "time"
-        else "motion (gyro cross-correlation with the first flight)"
-    )
+    how = "firmware time from each capture's first frame" if r.align == "time" else _MOTION_HOW
     lines = [f"{len(r.flights)} flights side by side, aligned by {how}"]
     width = max(len(f.label) for f in r.flights)
     for i, f in enumerate(r.flights):
@@ -506,12 +455,11 @@ def format_side_by_side(r: SideBySide) -> list[str]:
             f"  {chr(65 + i) if i < 26 else i}  {f.label:<{width}}  {f.path.name}: {f.duration_s:.1f} s, "
             f"{f.rows} rows, {f.kind}{lag}; {_settings_text(f.settings)}"
         )
-    lines.append(
+    lines += [
         "against accel-only tilt in still phases (deg; drift: the last still phase; rate deg/min): pitch = "
-        "thx (about x, nose up +), "
-        "roll = thy (about y)"
-    )
-    lines.append(f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll")
+        "thx (about x, nose up +), roll = thy (about y)",
+        f"  {'flight':<{width}}  still s  RMS pitch  RMS roll  drift pitch  drift roll  rate pitch/roll",
+    ]
     for f in r.flights:
         g = f.figures
         px, ry = g["pitch_thx"], g["roll_thy"]
@@ -529,12 +477,7 @@ def format_side_by_side(r: SideBySide) -> list[str]:
         lines.append(
             f"difference {d['label']} − {d['against']} over {d['overlap_s']:.1f} s: pitch {pitch}, roll {roll}"
         )
-    for n in r.notes:
-        lines.append(f"note: {n}")
-    return lines
-
-
-# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
+    return lines + [f"note: {n}" for n in r.notes]
 
 
 #: Flight colours, in order (the viewer uses the same).
@@ -617,8 +560,5 @@ def _still_table(ax, r: SideBySide) -> None:
     table.scale(1, 1.4)
     for i in range(len(rows)):
         table[i + 1, 0].get_text().set_color(COLOURS[i % len(COLOURS)])
-    ax.set_title(
-        "against accel-only tilt, still phases only (drift: the mean error in the last still phase)",
-        fontsize=10,
-        loc="left",
-    )
+    title = "against accel-only tilt, still phases only (drift: the mean error in the last still phase)"
+    ax.set_title(title, fontsize=10, loc="left")

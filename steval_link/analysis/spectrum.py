@@ -1,13 +1,10 @@
 """Sensor spectra of a capture (``steval spectrum``): Welch PSD, spectrogram and frequency-vs-throttle map of the
-gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows a flight's gyro spectra.
+gyro (mdps) and accelerometer (mg) per axis, as Betaflight's Blackbox viewer shows them.
 
 The rows hold the main loop's 5-sample averages of the 807.7 Hz ISR reads, at 161.54 Hz: the spectra end at
-80.77 Hz. A vibration above it is aliased, not lost (:func:`alias_lines`).
-
-Numerics: numpy only (scipy is an optional extra). Rows are split into runs of consecutive AHRS steps; each run is
-cut into Hann windows overlapping by half, each window's mean removed; the one-sided PSD (unit²/Hz, scipy's
-``welch(..., scaling="density")`` convention) is averaged over every window. The rate is measured on the firmware's
-clock."""
+80.77 Hz; a vibration above it is aliased (:func:`alias_lines`). numpy only (scipy is an optional extra): runs of
+consecutive steps cut into half-overlapping Hann windows, the one-sided PSD (unit²/Hz, scipy's ``welch`` density
+convention) averaged; the rate measured on the firmware's clock."""
 
 from __future__ import annotations
 
@@ -41,9 +38,6 @@ MIN_NPERSEG = 32
 _TIME_TOLERANCE = 0.5
 
 
-# ---- aliasing ----------------------------------------------------------------------------------------------------
-
-
 def alias_hz(f_hz: float, rate_hz: float = C.AHRS_RATE_HZ) -> float:
     """Where a sinusoid at ``f_hz`` appears when sampled at ``rate_hz``: folded into [0, rate/2]."""
     r = math.fmod(abs(float(f_hz)), rate_hz)
@@ -54,32 +48,22 @@ def _boxcar_gain(f_hz: float) -> float:
     """|gain| of the main loop's 5-sample average at the ISR rate (1 at 0 Hz, 0 at multiples of the AHRS rate)."""
     x = math.pi * f_hz / C.ISR_RATE_HZ
     s = math.sin(x)
-    if abs(s) < 1e-12:
-        return 1.0
-    return abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
-
-
-def _hold_gain(f_hz: float, rate_hz: float = GYRO_ODR_HZ) -> float:
-    """|gain| of a sample-and-hold at ``rate_hz`` (the gyro's output register): |sinc(f / rate)|."""
-    x = math.pi * f_hz / rate_hz
-    return 1.0 if x == 0 else abs(math.sin(x) / x)
+    return 1.0 if abs(s) < 1e-12 else abs(math.sin(C.FIFO_ORDER * x) / (C.FIFO_ORDER * s))
 
 
 def chain_gain(f_hz: float, sensor: str) -> float:
     """|gain| from a sinusoid at ``f_hz`` at the sensor to what the AHRS rows hold (at its alias): the boxcar for
     the accelerometer; the 416 Hz register hold, the gyro IIR and the boxcar for the gyro."""
     g = _boxcar_gain(f_hz)
-    if sensor == "gyro":
-        h = iir_frequency_response([f_hz])[0][0]
-        g *= abs(complex(h)) * _hold_gain(f_hz)
+    if sensor == "gyro":  # the 416 Hz register's hold is |sinc(f / 416 Hz)|
+        g *= abs(complex(iir_frequency_response([f_hz])[0][0])) * abs(float(np.sinc(f_hz / GYRO_ODR_HZ)))
     return g
 
 
 @dataclass(frozen=True)
 class AliasLine:
-    """Where a vibration at ``source_hz`` (at the sensor, or a gyro image ``|k·416 Hz ± f|``) shows in one sensor's
-    rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude seen / at the sensor) and ``what`` ("direct", "alias",
-    "416 Hz ODR image")."""
+    """Where a vibration at ``source_hz`` shows in one sensor's rows: ``seen_hz`` (0 … 80.77 Hz), ``gain`` (amplitude
+    seen / at the sensor) and ``what`` ("direct", "alias", "416 Hz ODR image")."""
 
     sensor: str
     source_hz: float
@@ -89,10 +73,8 @@ class AliasLine:
 
 
 def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_gain: float = 0.005) -> list[AliasLine]:
-    """The lines a sinusoid at ``f_hz`` (at the sensor) makes in the spectrum of ``sensor``'s rows sampled at
-    ``rate_hz``: the main line (:func:`alias_hz`, :func:`chain_gain`), then for the gyro the images of its 416 Hz output
-    register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong: a 12 Hz gyro line also shows at 36.3 and
-    60.6 Hz, about 1 % as strong."""
+    """The lines a sinusoid at ``f_hz`` makes in ``sensor``'s rows: the main line, then for the gyro the images of its
+    416 Hz register at ``|k·416 ± f|`` (k = 1 … 4) at least ``min_gain`` strong (12 Hz: 36.3 and 60.6 Hz)."""
     f = abs(float(f_hz))
     direct = f <= rate_hz / 2
     lines = [AliasLine(sensor, f, alias_hz(f, rate_hz), chain_gain(f, sensor), "direct" if direct else "alias")]
@@ -100,24 +82,17 @@ def alias_lines(f_hz: float, sensor: str, rate_hz: float = C.AHRS_RATE_HZ, min_g
         for k in (1, 2, 3, 4):
             for image in (k * GYRO_ODR_HZ - f, k * GYRO_ODR_HZ + f):
                 image = abs(image)
-                if abs(image - f) < 1e-9:
-                    continue
-                # the image's amplitude relative to f's: hold(image) / hold(f) of the register, then the same chain
-                g = _boxcar_gain(image) * abs(complex(iir_frequency_response([image])[0][0])) * _hold_gain(image)
-                if g >= min_gain:
+                g = chain_gain(image, "gyro")
+                if abs(image - f) >= 1e-9 and g >= min_gain:
                     lines.append(AliasLine(sensor, image, alias_hz(image, rate_hz), g, "416 Hz ODR image"))
     return lines
-
-
-# ---- segmentation and Welch --------------------------------------------------------------------------------------
 
 
 def contiguous_runs(
     step, t_fw_s, values, decimation: int = 1, rate_hz: float = C.AHRS_RATE_HZ
 ) -> list[tuple[int, int]]:
-    """Runs ``(start, stop)`` of rows that are consecutive samples: each row ``decimation`` AHRS steps after the one
-    before, its firmware time that many periods later (± half), and every value finite. A dropped frame, a
-    restart (the step counter goes back), a time jump or a NaN ends a run."""
+    """Runs ``(start, stop)`` of consecutive rows: each ``decimation`` AHRS steps and periods (± half) after the one
+    before, every value finite; a dropped frame, a restart, a time jump or a NaN ends a run."""
     step = np.asarray(step, dtype=np.int64)
     t = np.asarray(t_fw_s, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
@@ -136,17 +111,14 @@ def contiguous_runs(
 def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-sided PSD of each Hann window of ``x`` (N,) or (N, K): ``(freq_hz (F,), starts (W,), psd (W, F, K))``.
     Windows start every ``hop`` rows, their mean removed; their mean is ``scipy.signal.welch``'s."""
-    a = np.asarray(x, dtype=np.float64)
-    if a.ndim == 1:
-        a = a[:, None]
+    a = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
     n = a.shape[0]
     freq = np.fft.rfftfreq(nperseg, 1.0 / fs_hz)
     if n < nperseg:
         return freq, np.zeros(0, np.int64), np.zeros((0, len(freq), a.shape[1]))
     starts = np.arange(0, n - nperseg + 1, hop, dtype=np.int64)
     idx = starts[:, None] + np.arange(nperseg)[None, :]
-    frames = a[idx]  # (W, nperseg, K)
-    frames = frames - frames.mean(axis=1, keepdims=True)
+    frames = a[idx] - a[idx].mean(axis=1, keepdims=True)  # (W, nperseg, K)
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))
@@ -154,22 +126,11 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
     return freq, starts, psd
 
 
-# ---- the whole capture -------------------------------------------------------------------------------------------
-
-
 @dataclass
 class Spectra:
     """Spectra of one capture; column k of every PSD is ``SIGNALS[k]`` (gyro x, y, z in mdps²/Hz, then acc x, y, z
-    in mg²/Hz).
-
-    Attributes:
-        freq_hz: (F,) bins, 0 … Nyquist. psd: (F, 6) Welch average. spectrogram: (W, F, 6) PSD of each window.
-        window_t_fw_s: (W,) each window's centre, s since boot. window_thr: (W,) its mean throttle ``thr``.
-        thr_edges: (B+1,) throttle bin edges (gTHR). thr_psd: (B, F, 6) mean PSD per bin (NaN: empty).
-        thr_windows: (B,) windows per bin.
-        rate_hz: rows per second on the firmware clock (≈ 161.54 Hz). decimation: AHRS steps per row.
-        nperseg, hop: rows per window and between window starts. runs: the ``(start, stop)`` runs used.
-        rows: attitude rows; rows_used: rows inside the runs. notes: what was left out or assumed."""
+    in mg²/Hz) over F bins 0 … Nyquist, W windows (centre ``window_t_fw_s`` s since boot) and B throttle bins (gTHR;
+    NaN when empty). ``rate_hz``: rows per second on the firmware clock (≈ 161.54 Hz)."""
 
     freq_hz: np.ndarray
     psd: np.ndarray
@@ -202,10 +163,7 @@ class Spectra:
 
 
 def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, throttle_bins: int = 10) -> Spectra:
-    """The spectra of a :class:`~steval_link.link.telemetry.Telemetry`.
-
-    ``nperseg``: rows per window (default 256, or the longest run's power of two, never below 32); ``overlap``: the
-    fraction windows share. UserError without attitude rows or a run long enough for one window."""
+    """The spectra of a telemetry; ``nperseg`` default 256 (or the longest run's power of two, at least 32)."""
     if not 0 <= overlap < 1:
         raise ParamError(f"{{overlap}} must be a fraction in [0, 1), got {overlap}", "overlap")
     if throttle_bins < 1:
@@ -218,12 +176,9 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
         raise UserError("the capture has no attitude frames, so there is nothing to take a spectrum of.")
     step = np.asarray(att.step, dtype=np.int64)
     t = np.asarray(att.t_fw_s, dtype=np.float64)
-    values = np.concatenate(
-        [np.asarray(att.gyro_mdps, dtype=np.float64), np.asarray(att.acc_mg, dtype=np.float64)], axis=1
-    )
+    values = np.concatenate([att.gyro_mdps, att.acc_mg], axis=1).astype(np.float64)
     d = np.diff(step)
-    d = d[d > 0]
-    decimation = int(np.median(d)) if d.size else 1
+    decimation = int(np.median(d[d > 0])) if (d > 0).any() else 1
     runs = contiguous_runs(step, t, values, decimation)
     notes: list[str] = []
     nperseg = _window_rows(nperseg, max((b - a for a, b in runs), default=0), decimation, notes)
@@ -245,11 +200,10 @@ def compute_spectra(tel, *, nperseg: int | None = None, overlap: float = 0.5, th
     )
     edges, thr_psd, counts = _by_throttle(spectrogram, window_thr, throttle_bins)
     if len(runs) > 1:
-        dropped_runs = len(runs) - len(used)
         notes.append(
             f"{len(runs)} runs of consecutive rows (gaps from dropped frames, restarts or time jumps); "
             f"{len(used)} long enough for a window"
-            + (f", {dropped_runs} shorter ones left out" if dropped_runs else "")
+            + (f", {len(runs) - len(used)} shorter ones left out" if len(runs) > len(used) else "")
         )
     return Spectra(
         freq_hz=freq,
@@ -295,8 +249,7 @@ def _window_rows(nperseg: int | None, longest: int, decimation: int, notes: list
 def _windows(values, t, thr, runs, rate: float, nperseg: int, hop: int):
     """Every window of every run: (freq_hz, PSD per window, centre time per window, mean throttle per window)."""
     specs, centres, thr_w = [], [], []
-    freq = np.fft.rfftfreq(nperseg, 1.0 / rate)
-    for a, b in runs:
+    for a, b in runs:  # at least one: compute_spectra checked it
         freq, starts, psd = welch_windows(values[a:b], rate, nperseg, hop)
         specs.append(psd)
         centres.append(0.5 * (t[a + starts] + t[a + starts + nperseg - 1]))
@@ -317,14 +270,10 @@ def _by_throttle(spectrogram: np.ndarray, window_thr: np.ndarray, bins: int):
     return edges, thr_psd, counts
 
 
-# ---- peaks -------------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Peak:
-    """A PSD peak: ``freq_hz`` (interpolated by a Gaussian fit of three bins), ``psd`` (unit²/Hz at the peak bin),
-    ``amplitude`` (unit, peak, of the sinusoid that makes the power over ±3 bins above the floor) and
-    ``above_floor_db`` (over the median PSD)."""
+    """A PSD peak: ``freq_hz`` (Gaussian fit of three bins), ``psd`` (unit²/Hz), ``amplitude`` (unit, of the sinusoid
+    making the power over ±3 bins above the floor) and ``above_floor_db`` (over the median PSD)."""
 
     freq_hz: float
     psd: float
@@ -337,12 +286,10 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
     median PSD there, each at least 4 bins from a stronger one (a Hann window's main lobe is ±2 bins wide)."""
     f = np.asarray(freq_hz, dtype=np.float64)
     p = np.asarray(psd, dtype=np.float64)
-    if f.size < 3:
+    band = f >= min_hz
+    if f.size < 3 or not band.any():
         return []
     df = f[1] - f[0]
-    band = f >= min_hz
-    if not band.any():
-        return []
     floor = float(np.median(p[band]))
     k = np.arange(1, len(p) - 1)
     is_max = (p[k] > p[k - 1]) & (p[k] >= p[k + 1]) & band[k]
@@ -354,10 +301,8 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
     out: list[Peak] = []
     taken: list[int] = []
     for i in cand:
-        if len(out) >= count:
-            break
         ratio = p[i] / floor if floor > 0 else np.inf
-        if ratio < 10 ** (min_db / 10):
+        if len(out) >= count or ratio < 10 ** (min_db / 10):
             break
         if any(abs(int(i) - j) < 4 for j in taken):
             continue
@@ -370,18 +315,10 @@ def find_peaks(freq_hz, psd, count: int = 3, min_hz: float = 1.0, min_db: float 
                 centre += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) * df
         lo, hi = max(int(i) - 3, 0), min(int(i) + 4, len(p))
         power = max(float(np.sum(p[lo:hi]) - floor * (hi - lo)), 0.0) * df
-        out.append(
-            Peak(
-                centre,
-                float(p[i]),
-                math.sqrt(2 * power),
-                float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf,
-            )
-        )
+        db = float(10 * math.log10(ratio)) if np.isfinite(ratio) else math.inf
+        out.append(Peak(centre, float(p[i]), math.sqrt(2 * power), db))
     return out
 
-
-# ---- output: CSV and the printed summary -------------------------------------------------------------------------
 
 #: CSV columns of :func:`write_csv`; the PSD columns carry their unit (mdps²/Hz, mg²/Hz)
 CSV_COLUMNS = (
@@ -396,9 +333,8 @@ def _num(v) -> str:
 
 
 def write_csv(sp: Spectra, stream) -> int:
-    """The spectra as one CSV table (:data:`CSV_COLUMNS`); ``section`` is ``psd`` (the Welch average),
-    ``spectrogram`` (per window: its centre ``t_fw_s`` and mean ``thr``) or ``throttle`` (per non-empty bin
-    ``thr_lo`` … ``thr_hi``). Returns the rows written."""
+    """The spectra as one CSV table; ``section`` ``psd`` (Welch average), ``spectrogram`` (per window: ``t_fw_s``,
+    mean ``thr``) or ``throttle`` (per non-empty bin ``thr_lo`` … ``thr_hi``). Returns the rows written."""
     w = csv.writer(stream, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     # (the row's first cells, its PSD (F, 6)) per section
@@ -464,9 +400,6 @@ def format_summary(
     return lines
 
 
-# ---- the figure (matplotlib, optional) -----------------------------------------------------------------------------
-
-
 _AXIS_NAMES = {"x": "x (right)", "y": "y (forward)", "z": "z (up)"}
 _MARK_COLOURS = ["tab:purple", "tab:green", "tab:brown", "tab:olive", "tab:cyan"]
 #: matplotlib settings of the figure: every text 9 pt or more at the saved size
@@ -495,9 +428,7 @@ def _db(psd: np.ndarray) -> np.ndarray:
 def _levels(values: np.ndarray) -> tuple[float, float]:
     """Colour range of a heat map: the 2nd to the top percentile of its finite dB values (noise floor to peak)."""
     v = values[np.isfinite(values)]
-    if v.size == 0:
-        return 0.0, 1.0
-    lo, hi = float(np.percentile(v, 2)), float(v.max())
+    lo, hi = (float(np.percentile(v, 2)), float(v.max())) if v.size else (0.0, 1.0)
     return lo, hi if hi > lo else lo + 1.0
 
 
@@ -530,30 +461,16 @@ def _psd_panel(ax, sp: Spectra, k: int, marks_hz, found: list[Peak], legend: boo
         colour = _MARK_COLOURS[m % len(_MARK_COLOURS)]
         for j, line in enumerate(alias_lines(fm, sensor, sp.rate_hz)):
             image = line.what == "416 Hz ODR image"
-            ax.axvline(
-                line.seen_hz,
-                color=colour,
-                lw=1.0,
-                ls=":" if image else "--",
-                label=(f"{fm:g} Hz input" if not image else f"{fm:g} Hz: register images") if j < 2 else None,
-            )
+            label = (f"{fm:g} Hz: register images" if image else f"{fm:g} Hz input") if j < 2 else None
+            ax.axvline(line.seen_hz, color=colour, lw=1.0, ls=":" if image else "--", label=label)
     for i, p in enumerate(found):
         src = image_of(p, found[:i], sensor, sp.rate_hz, 1.5 * sp.resolution_hz)
         text = f"{p.freq_hz:.1f} Hz" + (f"\nimage of {src.freq_hz:.1f} Hz" if src else "")
         ax.plot([p.freq_hz], [p.psd], "o", color="tab:orange", ms=4)
         left = p.freq_hz > 0.7 * nyq  # near the right edge: the label to the left of the peak
-        ax.annotate(
-            text,
-            (p.freq_hz, p.psd),
-            textcoords="offset points",
-            xytext=(-4 if left else 4, 2),
-            ha="right" if left else "left",
-            fontsize=9,
-            color="darkorange",
-        )
-    ax.set_xlim(0, nyq * 1.02)
-    ax.set_title(f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD")
-    ax.set_xlabel("frequency [Hz]")
+        style = dict(textcoords="offset points", fontsize=9, color="darkorange", ha="right" if left else "left")
+        ax.annotate(text, (p.freq_hz, p.psd), xytext=(-4 if left else 4, 2), **style)
+    ax.set(xlim=(0, nyq * 1.02), title=f"{sensor} {_AXIS_NAMES['xyz'[axis_i]]}: PSD", xlabel="frequency [Hz]")
     ax.set_ylabel(f"{UNITS[sensor]}²/Hz")
     ax.grid(True, which="major", alpha=0.3)
     if legend:
@@ -567,10 +484,8 @@ def _spectrogram_panel(fig, ax, sp: Spectra, sensor: str) -> None:
     lo, hi = _levels(z)
     mesh = ax.pcolormesh(sp.window_t_fw_s, sp.freq_hz, z, shading="nearest", cmap="inferno", vmin=lo, vmax=hi)
     fig.colorbar(mesh, ax=ax, label=f"dB re 1 {UNITS[sensor]}²/Hz")
-    ax.set_ylim(0, sp.nyquist_hz)
-    ax.set_title(f"{sensor} spectrogram (x + y + z)")
+    ax.set(ylim=(0, sp.nyquist_hz), title=f"{sensor} spectrogram (x + y + z)", ylabel="frequency [Hz]")
     ax.set_xlabel("firmware time [s since boot]")
-    ax.set_ylabel("frequency [Hz]")
 
 
 def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
@@ -590,15 +505,12 @@ def _throttle_panel(fig, ax, sp: Spectra, marks_hz) -> None:
     labels = [f"{e[b]:.0f}–{e[b + 1]:.0f}" for b in occupied]
     step = max(1, len(labels) // 5)
     ax.set_xticks(np.arange(len(occupied))[::step] + 0.5, labels[::step])
-    ax.set_ylim(0, sp.nyquist_hz)
-    ax.set_title("gyro (x + y + z) vs throttle")
+    ax.set(ylim=(0, sp.nyquist_hz), title="gyro (x + y + z) vs throttle", ylabel="frequency [Hz]")
     ax.set_xlabel(f"throttle gTHR (bins with data; motors from {C.MIN_THR})")
-    ax.set_ylabel("frequency [Hz]")
 
 
 def spectra_figure(sp: Spectra, *, marks_hz=(), peaks: dict[str, list[Peak]] | None = None, title: str = ""):
-    """The ``--plot`` figure: the Welch PSD per axis (Nyquist, marks, peaks, a register image named), the
-    spectrograms, and the gyro's frequency-vs-throttle map (else a panel saying what the lines are)."""
+    """The ``--plot`` figure: PSD per axis, spectrograms, the frequency-vs-throttle map (else what the lines are)."""
     plt = require_matplotlib()
     with plt.rc_context(_RC):
         fig, axes = plt.subplots(3, 3, figsize=(16, 14), squeeze=False)

@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from steval_link.analysis.diagnosis import recognise_release
+from steval_link.analysis.diagnosis import q_norm, recognise_release
+from steval_link.analysis.link_stats import step_cost
 from steval_link.analysis.report import fmt_number, json_number
-from steval_link.analysis.step_cost import step_cost
 from steval_link.link import protocol as P
 from steval_link.link.ble_payloads import TICK_S, TICK_WRAP
 from steval_link.link.commands import command_log
@@ -31,8 +31,7 @@ _FLAG_NAMES = {
 
 
 def values_bad_report(tel) -> dict[str, Any] | None:
-    """The rows kept with NaN or out-of-range values (None: none): ``frames``, ``status_frames``, the first
-    (``first_row``, ``first_step``, ``first_t_fw_s``), ``inputs_bad`` (acc/gyro bad too) and ``text``, its sentence."""
+    """The rows kept with NaN or out-of-range values, the first of them and a sentence (None: none)."""
     a = tel.attitude
     bad = np.asarray(getattr(a, "values_bad", np.zeros(len(a), bool)), bool)
     sbad = np.asarray(getattr(tel.status, "values_bad", np.zeros(len(tel.status), bool)), bool)
@@ -69,18 +68,14 @@ def values_bad_report(tel) -> dict[str, Any] | None:
 
 
 def q_norm_report(tel) -> dict[str, Any] | None:
-    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite; the release keeps
-    ``|q|`` ≈ 0.9983), None when there is none: ``frames``, the first (``first_step``, ``first_t_fw_s``,
-    ``q_norm``) and ``text``."""
+    """Binary rows whose q is off the unit sphere (``| |q| − 1 |`` > 0.05, or non-finite), the first of them and a
+    sentence; None when there is none."""
     a = tel.attitude
-    ex = np.asarray(a.exact, bool)
-    off = ex & q_off_sphere(a.q_wxyz)
+    off = np.asarray(a.exact, bool) & q_off_sphere(a.q_wxyz)
     if not off.any():
         return None
     i = int(np.argmax(off))
-    q = np.asarray(a.q_wxyz[i], np.float64)
-    with np.errstate(over="ignore", invalid="ignore"):
-        norm = float(np.sqrt((q * q).sum()))
+    norm = q_norm(a.q_wxyz[i])
     n = int(off.sum())
     how = f"|q| = {norm:.4g}" if np.isfinite(norm) else "non-finite"
     text = (
@@ -98,8 +93,7 @@ def q_norm_report(tel) -> dict[str, Any] | None:
 
 
 def text_telemetry_report(tel) -> dict[str, Any] | None:
-    """The records of text telemetry (None: none): their count, series names and units, other and dropped
-    lines, the time source, notes, and how series became the attitude rows."""
+    """The records of text telemetry: count, series, units, other lines, time source and notes (None: none)."""
     ts = getattr(tel, "text_series", None)
     if ts is None or not len(ts):
         return None
@@ -127,11 +121,8 @@ def _text_telemetry_lines(t: dict[str, Any]) -> list[str]:
 
 
 def summarize(tel, *, variant: str | None = None, variant_source: str = "variant setting") -> dict[str, Any]:
-    """Frames, duration, rates, drops, CRC failures, text lines, events and the firmware's filter settings.
-
-    ``duration_s``: firmware time of the attitude rows (host time without one); ``rate_hz``: attitude frames per second;
-    ``step_rate_hz``: AHRS steps per second (161.5); ``drop_ratio`` = missing / (received + missing); ``release``: the
-    ST release whose filter reproduces the rows (``variant`` forces one)."""
+    """Frames, duration (s of firmware time, else host time), rates, drops (``drop_ratio`` = missing / (received +
+    missing)), CRC failures, text lines, events, the filter settings and the release (``variant`` forces one)."""
     if getattr(tel, "link", None) is not None:  # a BLE capture: its link's facts (cadence, notifications, environment)
         return summarize_ble(tel)
     a, s, st = tel.attitude, tel.status, tel.stats
@@ -197,8 +188,7 @@ def _durations(a) -> tuple[float, float | None, float]:
     duration = float(np.sum(a.t_fw_s[np.append(starts[1:], n) - 1] - a.t_fw_s[starts])) if n > 1 else 0.0
     host = a.t_host_s[np.isfinite(a.t_host_s)] if n else np.zeros(0)
     host_duration = float(host[-1] - host[0]) if len(host) > 1 else None
-    if duration <= 0 and host_duration:
-        duration = host_duration
+    duration = host_duration if duration <= 0 and host_duration else duration
     steps = float(np.sum(np.where(restarts, 0, np.diff(a.step)))) if n > 1 else 0.0
     return duration, host_duration, steps
 
@@ -261,8 +251,7 @@ def format_summary(summary: dict[str, Any], max_text_lines: int = 8) -> list[str
     n_text = s["frames"]["text"]
     if n_text:
         shown = s["text_lines"][:max_text_lines]
-        lines.append(f"text lines ({n_text}):")
-        lines.extend(f"  | {t}" for t in shown)
+        lines += [f"text lines ({n_text}):"] + [f"  | {t}" for t in shown]
         if n_text > len(shown):
             lines.append(f"  | ... {n_text - len(shown)} more")
     return lines + [f"warning: {w}" for w in s["warnings"]]
@@ -277,9 +266,8 @@ def _source_lines(s: dict[str, Any]) -> list[str]:
             f"  recorded from {src.get('port')} at {src.get('baud')} baud, start {src.get('start_time_utc')}, "
             f"steval-link {src.get('tool_version')}"
         )
-    kinds = f"{f['attitude_binary']} binary"
-    if f["attitude_text_mode"]:
-        kinds += f", {f['attitude_text_mode']} text-mode"
+    text_mode = f["attitude_text_mode"]
+    kinds = f"{f['attitude_binary']} binary" + (f", {text_mode} text-mode" if text_mode else "")
     fc = ""
     if f.get("flight_control"):
         every = f.get("flight_control_every")
@@ -447,8 +435,7 @@ def format_ble_summary(s: dict[str, Any]) -> list[str]:
             f"skipped           {s['bad_payloads']} wrong-length, {s['unknown_characteristics']} "
             "unknown-characteristic notifications"
         )
-    for e in s["events"]:
-        lines.append(f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip())
+    lines += [f"event             {e['t_host_s']:.3f} s {e['kind']} {e['text']}".rstrip() for e in s["events"]]
     rng = s.get("attitude_deg_range")
     if rng:
         lines.append(

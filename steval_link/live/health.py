@@ -11,7 +11,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from steval_link.analysis.step_cost import step_cost
+from steval_link.analysis.link_stats import step_cost
 from steval_link.errors import UserError
 from steval_link.link.load import load_telemetry
 from steval_link.link.plausibility import held_back_sentence, values_bad_sentence
