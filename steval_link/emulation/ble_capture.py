@@ -71,10 +71,6 @@ class EmulatedBlueNrg:
             return struct.pack("<BHb", 0, 0, self.rssi_dbm)
         return b""
 
-    def attach(self, board) -> EmulatedBlueNrg:
-        board.hci_handler = self
-        return self
-
 
 #: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
 #: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")

@@ -140,8 +140,7 @@ def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
     )
     begin = TIM9_START_CYCLES + (np.asarray(step_tick, np.int64) + 1) * C.TICK_CYCLES + isr_cycles + loop_latency
     cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
-    txe_u = rng.random(n_steps)
-    return begin, cyc_noise, txe_u
+    return begin, cyc_noise, rng.random(n_steps)
 
 
 @dataclass

@@ -7,27 +7,25 @@
         ...
     print(emu.report().lines())
 
-Motion: a built-in scenario (rendered in windows of :data:`WINDOW_S`, so memory stays bounded whatever the
-duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an LSM6DSL with this seed's
-offsets and white noise (as ``steval synth``), into the sensor's ADC registers. Throttle: the default build takes
-``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``; the emulated remote writes ``joydata`` at each
-TIM9 tick and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a scenario with
-sticks (the firmware then also sends its BLE notifications through ``hci_send_req``). Connected, it sends every
-stick as ST's app does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred;
-``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
-(``rc_enable_motor``): with ``flight`` and ``preflight`` the real firmware computes its targets ``euler_rc``, both
-PID loops and the motor PWM. Builds with ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
+Motion: a built-in scenario (rendered :data:`WINDOW_S` at a time, so memory stays bounded) or a BROAD trial (from
+the first TIM9 tick on), through an LSM6DSL with this seed's offsets and noise (as ``steval synth``) into its ADC
+registers. Throttle: the default build takes ``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``.
+The emulated remote writes ``joydata`` each TIM9 tick and connects at its first throttle or arming (a scenario with
+sticks: at power-up; the firmware then also sends BLE notifications). Connected, it sends every stick as ST's app
+does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; ``gRUD =
+(j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``), ``[7]`` bit 2 the arming switch. Builds with
+``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
 
-Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
-``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
-and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
+Sensor faults (``mount``): the board turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
+``config_drone.h``: ``turned-90`` (x and y swapped), ``turned-180`` (x and y reversed).
 
-Host → drone bytes (the two-way link, USART1 RX: :meth:`Emulation.send_at`, :meth:`Emulation.send`) arrive on the
-emulated RX line at the baud rate's pace; :meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
+Host → drone bytes (:meth:`Emulation.send_at`, :meth:`Emulation.send`) reach USART1 RX at the baud rate's pace;
+:meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import queue
 import time
@@ -43,8 +41,7 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
-from steval_link.emulation.scenarios import scenario
-from steval_link.emulation.seeds import random_streams
+from steval_link.emulation.scenarios import random_streams, scenario
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import ParamError, UserError
 
@@ -78,8 +75,7 @@ class EmulationOptions:
     command_line: str | None = None
 
     def settings(self) -> dict:
-        """What determines the run, by parameter name: the motion (``broad`` or ``scenario``), ``duration_s``,
-        ``seed``, ``throttle``, ``mount`` (those given)."""
+        """What determines the run (the parameters given), by parameter name."""
         out = {"broad": str(self.broad)} if self.broad is not None else {"scenario": self.scenario}
         out.update(duration_s=self.duration_s, seed=self.seed, throttle=self.throttle, mount=self.mount)
         return {k: v for k, v in out.items() if v is not None}
@@ -96,23 +92,16 @@ MOUNTS: dict[str, np.ndarray] = {
 }
 
 
-def check_mount(mount: str | None) -> np.ndarray | None:
-    """The rotation of a ``--mount`` name (None for a correctly mounted board); :class:`UserError` if unknown."""
-    if mount is None:
-        return None
-    if mount not in MOUNTS:
-        raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
-    return MOUNTS[mount]
-
-
 class ScenarioMotion:
     """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""
 
     def __init__(
         self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None, mount: str | None = None
     ) -> None:
+        if mount is not None and mount not in MOUNTS:
+            raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
         self.name = name
-        self._mount = check_mount(mount)
+        self._mount = None if mount is None else MOUNTS[mount]
         self.total_s = total_s
         self.seed = seed
         self.trial = trial
@@ -134,11 +123,12 @@ class ScenarioMotion:
         self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
         #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
-        self._rendered = self._previous = None
+        self._rendered = functools.lru_cache(maxsize=2)(self._render)
         self._acc = self._gyro = self._thr = self._sticks = self._armed = self._joydata = None
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
-    def _render(self, w: int) -> None:
+    def _render(self, w: int) -> tuple:
+        """Window ``w``: its first tick, the acc and gyro counts, the remote's thr, sticks, armed and joydata."""
         n = _WINDOW_TICKS
         k0 = w * n
         t = (k0 + np.arange(n)) * C.TICK_PERIOD_S
@@ -158,32 +148,19 @@ class ScenarioMotion:
             gyro = prof.gyro_mdps + np.asarray(s.gyro_bias_mdps) + s.gyro_noise_mdps * noise
         if self._mount is not None:
             acc, gyro = acc @ self._mount.T, gyro @ self._mount.T
-        self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
-        self._thr = prof.thr
-        self._sticks, self._armed = prof.sticks, prof.armed
-        self._joydata = _joydata_table(self._thr, self._sticks, self._armed)
-        self._window = w
-        self._k0 = k0
-        self._previous, self._rendered = (
-            self._rendered,
-            (w, k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata),
-        )
+        acc, gyro = body_to_sensor_counts(acc, gyro)
+        return k0, acc, gyro, prof.thr, prof.sticks, prof.armed, _joydata_table(prof.thr, prof.sticks, prof.armed)
 
     def forget(self) -> None:
         """Render the windows again (their trial time changed)."""
         self._window = -1
-        self._rendered = self._previous = None
+        self._rendered.cache_clear()
 
     def _at(self, k: int) -> int:
         w = max(k, 0) // _WINDOW_TICKS
         if w != self._window:
-            if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
-                self._previous, self._rendered = self._rendered, self._previous
-                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata) = (
-                    self._rendered
-                )
-            else:
-                self._render(w)
+            self._window = w
+            self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata = self._rendered(w)
         return max(k, 0) - self._k0
 
     def window_row(self, k: int) -> int:
@@ -203,8 +180,7 @@ class ScenarioMotion:
         return int(self._thr[i]), sticks, armed
 
     def remote_bytes(self, k: int) -> tuple[int, bytes]:
-        """At tick ``k``: 1 if the remote moves (a throttle or the arming switch), else 0, and its
-        ``joydata[2..7]`` (:func:`joydata_bytes`; ``[1]`` is the throttle's byte)."""
+        """At tick ``k``: 1 if the remote moves (throttle or arming) else 0, and its ``joydata[2..7]``."""
         j = 7 * self._at(k)
         return self._joydata[j + 6], self._joydata[j : j + 6]
 
@@ -219,14 +195,11 @@ class EmulationReport:
     skipped_instructions: int
     interrupts: dict[str, int]
     usart_bytes: int
-    first_byte_s: float | None
     first_attitude_s: float | None
     tim9_start_s: float | None
     ahrs_steps: int
     step_instructions: list[int] = field(default_factory=list)
     dwt_windows: list[int] = field(default_factory=list)
-    hci_requests: int = 0
-    native_counter: bool = True
     #: wall seconds spent in :meth:`Emulation.chunks` (the board and its Python models, not the consumer)
     wall_s: float = 0.0
 
@@ -287,10 +260,8 @@ class Emulation:
     def __init__(
         self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0, ble_connect_s: float | None = None
     ) -> None:
-        """``bluenrg``: an ``ble_capture.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
-        RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
-        before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
-        stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""
+        """``bluenrg``: an ``ble_capture.EmulatedBlueNrg`` answering HCI requests; ``tick_start_ms``: ``uwTick`` at
+        ``main``; ``ble_connect_s``: a central (not the remote) connects at this emulated time."""
         self.options = options
         self._connect_at = None if ble_connect_s is None else int(ble_connect_s * C.CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
@@ -300,10 +271,7 @@ class Emulation:
         self.elf = Elf(options.elf)
         trial = options.broad  # a path, or already loaded (e.g. cut short by steval evaluate)
         if trial is not None and not isinstance(trial, BroadTrial):
-            try:
-                trial = load_trial(trial)
-            except (OSError, ValueError, KeyError) as exc:
-                raise UserError(f"cannot read BROAD trial {options.broad}: {exc}") from None
+            trial = load_trial(trial)
         if trial is not None:
             name, default = trial.name, float(trial.t_s[-1]) + 3.0
         else:
@@ -334,13 +302,12 @@ class Emulation:
         self.n_steps = 0
         self._wall_s = 0.0
         self._bytes = 0
-        self._first_byte_s: float | None = None
         self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
         self._host_sched: list[tuple[int, int, bytes]] = []  # (instruction count, order, bytes) not yet on the line
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
         self._host_order = 0
         self._install_step_probes()
-        self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
+        self.board.hci_handler = bluenrg
         tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
         if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
             start = int(tick_start_ms) & 0xFFFFFFFF
@@ -404,9 +371,8 @@ class Emulation:
             board.ram_write(self._joy + 3, joy[1:2])
 
     def plan_ticks(self, board: Board) -> tuple | None:
-        """What :meth:`_on_tick` and the sensors do at the next TIM9 updates, while the rendered window gives it:
-        (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote bytes (n, m) uint8, the instruction
-        count it holds until or None). None: the next update needs :meth:`_on_tick`."""
+        """The next TIM9 updates as tables (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote
+        bytes (n, m) uint8, the instruction count it holds until or None); None: the next needs :meth:`_on_tick`."""
         m = self.motion
         i = m.window_row(self.bus.tick_index(board) + 1)  # the next update's sensor row; the remote reads the next
         n = _WINDOW_TICKS - 1 - i
@@ -468,9 +434,7 @@ class Emulation:
         return (first + (np.asarray(k) - k0) * C.TICK_CYCLES) / C.CPU_HZ
 
     def trial_time_s(self, k) -> np.ndarray | float:
-        """BROAD runs: trial time (s) of the sample the sensors hold at motion tick ``k``: ``k · TICK_PERIOD_S`` minus
-        the first TIM9 tick's emulated time. Not clipped (the sensors hold the trial's first sample before 0 and its
-        last after its end), so a caller can tell the ticks outside the trial."""
+        """BROAD runs: trial time (s) of motion tick ``k``, not clipped (a caller tells the ticks outside the trial)."""
         if self.motion.first_tick_s is None:
             raise ValueError("TIM9 has not started")
         return np.asarray(k) * C.TICK_PERIOD_S - self.motion.first_tick_s
@@ -489,11 +453,9 @@ class Emulation:
             b.run_until(min(end, b.now + slice_cycles))
             self._wall_s += time.perf_counter() - t0
             self._host_progress()
-            data, first_t, last_t = b.take_output()
+            data, _, last_t = b.take_output()
             if data:
                 last_byte_t = last_t
-                if self._first_byte_s is None:
-                    self._first_byte_s = first_t / C.CPU_HZ
                 self._bytes += len(data)
                 yield data, last_byte_t / C.CPU_HZ
             if self.n_steps != last_steps:
@@ -524,14 +486,11 @@ class Emulation:
             skipped_instructions=b.stats.skipped_instructions,
             interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
             usart_bytes=self._bytes,
-            first_byte_s=self._first_byte_s,
             first_attitude_s=self._first_step_s,
             tim9_start_s=None if tim9 is None else tim9 / C.CPU_HZ,
             ahrs_steps=self.n_steps,
             step_instructions=list(self._steps),
             dwt_windows=list(self._dwt),
-            hci_requests=b.hci_requests,
-            native_counter=b.native,
             wall_s=self._wall_s,
         )
 

@@ -2,7 +2,8 @@
 s since power-up), eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are
 exact derivatives the sensors can sample anywhere. A scenario is a function of the run's length and a random
 generator that returns its :class:`Kinematics`; each starts at rest, so the firmware's offset calibration sees a
-still drone. :mod:`steval_link.emulation.motion` renders them.
+still drone. :mod:`steval_link.emulation.motion` renders them. :func:`random_streams`: the random streams of one
+seed, from which ``steval synth`` and ``steval emulate`` draw the same moves and sensor offsets.
 """
 
 from __future__ import annotations
@@ -19,6 +20,25 @@ from steval_link.quat import quaternion_from_euler
 G_MPS2 = 9.80665  #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 MG_PER_MPS2 = 1000.0 / G_MPS2
 DEG = np.pi / 180.0
+SEED_SALT = 0x5EA1  #: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
+
+
+@dataclass(frozen=True)
+class RandomStreams:
+    """Independent generators of one seed, one per job (spawned in this order)."""
+
+    motion: np.random.Generator  #: the scenario's moves, throttle jitter, motor vibration
+    sensor: np.random.Generator  #: the LSM6DSL's offsets and slow gyro drift
+    noise: np.random.Generator  #: the sensor's white noise per reading
+    fw: np.random.Generator  #: firmware step timing
+    drop: np.random.Generator  #: forced frame drops
+    host: np.random.Generator  #: host-side read timing
+    boot: np.random.Generator  #: the boot text's timing
+
+
+def random_streams(seed: int) -> RandomStreams:
+    """The streams of ``seed``: ``SeedSequence([seed, SEED_SALT])`` spawned into seven generators."""
+    return RandomStreams(*(np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), SEED_SALT]).spawn(7)))
 
 
 def rotmat(q) -> np.ndarray:

@@ -26,8 +26,7 @@ from steval_link.emulation import fw_link as fwl
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
-from steval_link.emulation.scenarios import scenario
-from steval_link.emulation.seeds import random_streams
+from steval_link.emulation.scenarios import random_streams, scenario
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.estimators.st_mahony import run as mahony_run
@@ -319,11 +318,9 @@ def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng,
     arrive = arrive + rng.exponential(0.00015, len(arrive))
     arrive = np.maximum.accumulate(arrive)
     keep = arrive <= total_s
-    flush_end = np.array(flush_end, dtype=np.int64)[keep]
-    arrive = arrive[keep]
-    n_cap = int(flush_end[-1]) if len(flush_end) else 0
-    chunk_offsets = np.concatenate(([0], flush_end[:-1])) if len(flush_end) else np.zeros(0, np.int64)
-    return (first, first + n_cap), chunk_offsets.astype(np.int64), arrive - join
+    ends = np.array(flush_end, dtype=np.int64)[keep]
+    n_cap = int(ends[-1]) if len(ends) else 0
+    return (first, first + n_cap), np.concatenate(([0], ends[:-1]))[: len(ends)].astype(np.int64), arrive[keep] - join
 
 
 def _header(opts: SynthOptions, name: str, duration: float) -> dict:
