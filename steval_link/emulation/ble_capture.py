@@ -1,10 +1,9 @@
 """A BLE capture from the real firmware under emulation (``steval emulate ELF --ble``, ``recordings/ble_demo.stv``).
 
-:class:`EmulatedBlueNrg`, the board's BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT
-handles (so each ``aci_gatt_update_char_value`` names its characteristic by UUID, as on the chip), an RSSI, and
-records every update, accepted at once (no radio congestion is modelled). :func:`record_ble` connects a central
-at ``connect_s`` and writes each notification of steval's characteristics as a capture ``B`` chunk, its host time
-the emulated delivery time (s since power-up): what ``steval live --ble`` would record, minus the radio's timing.
+:class:`EmulatedBlueNrg`, the BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT handles (each
+``aci_gatt_update_char_value`` names its characteristic by UUID), an RSSI, and records every update (no radio
+congestion). :func:`record_ble` connects a central at ``connect_s`` and writes each notification of steval's
+characteristics as a ``B`` chunk at its emulated time: what ``steval live --ble`` records, minus the radio's timing.
 """
 
 from __future__ import annotations

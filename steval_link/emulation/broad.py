@@ -157,10 +157,9 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
-    """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
-    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added only when given),
-    then the firmware's ISR pipeline. Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it
-    averages; the gyro's hold and IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
+    """The trial as the STEVAL sees it at 161.5 Hz: resampled to the ISR tick (the gyro held at 416 Hz), quantised
+    like the ST driver (with ``sensor``'s noise, seeded by ``seed``, when given), through the ISR pipeline. A step's
+    ``t_s`` is the middle of the 5 ticks it averages; the gyro's ≈ 3.3 ms delay stays in every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)
@@ -200,11 +199,9 @@ class TruthRows:
 class StepTruth:
     """The ground truth each AHRS step of an ``Emulation`` of a BROAD trial saw; attach before running.
 
-    At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is the
-    first TIM9 tick; the trials start at rest, so the firmware's 2 s offset calibration takes a level pose). A step
-    averages the 5 ISR samples up to tick ``k_last`` (a probe at ``ahrs_fusion_ag`` records it): its truth is taken
-    at the window's centre, tick ``k_last − 2``, as :func:`steval_view` does. AHRS step ``i`` (from 0) is the
-    ``i``-th call of ``ahrs_fusion_ag``, the step counter of the patch's frames.
+    Trial time 0 is the first TIM9 tick (the trials start at rest, so the 2 s calibration sees a level pose). A step
+    averages the 5 ISR samples up to tick ``k_last`` (recorded at ``ahrs_fusion_ag``); its truth is at tick
+    ``k_last − 2``, as in :func:`steval_view`. Step ``i`` is the ``i``-th call of ``ahrs_fusion_ag`` (from 0).
     """
 
     def __init__(self, emu) -> None:

@@ -1,12 +1,8 @@
-"""BROAD trials on demand: download from the dataset's public repository into a user cache, check, convert to
-the ``.npz`` the tools read (:func:`steval_link.emulation.broad.load_trial`).
+"""BROAD trials on demand: download into a user cache, check, convert to the ``.npz`` that ``broad.load_trial`` reads.
 
-- Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (CC BY 4.0); ``STEVAL_BROAD_URL``
-  replaces the base URL (a mirror, or the tests' loopback server).
-- Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), the one published fingerprint of every file.
-- Download with pooch; the check and the conversion happen in a private folder of the cache, and only a complete
-  ``.npz`` is renamed into place, so nothing half-written is ever left.
-
+Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (CC BY 4.0); ``STEVAL_BROAD_URL``
+replaces the base URL. Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), its one published
+fingerprint. pooch downloads into a private folder of the cache; only a complete ``.npz`` is renamed into place.
 The conversion keeps the values as float32: ``acc`` = ``imu_acc`` (m/s²), ``gyr`` = ``imu_gyr`` (rad/s), ``quat`` =
 ``opt_quat`` (wxyz, IMU → ENU, NaN where occluded), ``movement`` (bool), ``fs`` = ``sampling_rate`` (Hz).
 """
@@ -104,8 +100,7 @@ def cached_trials(directory: Path) -> list[Path]:
 
 
 def resolve_trials(selectors: list[str]) -> list[str]:
-    """Trial names for ``selectors``: a number (``2``, ``02``), a full or partial name (``fast_rotation``), or
-    ``all``; none gives :data:`DEFAULT_TRIALS`. An unknown one raises UserError naming the trials."""
+    """Trial names for ``selectors``: a number (``2``, ``02``), part of a name, or ``all``; none: DEFAULT_TRIALS."""
     names = list(BROAD_FILES)
     chosen: list[str] = []
     for sel in selectors or list(DEFAULT_TRIALS):
@@ -129,8 +124,7 @@ def git_blob_sha1(data: bytes) -> str:
 
 
 def convert_hdf5(src: Path, dst: Path) -> None:
-    """Write BROAD's HDF5 trial ``src`` as the tools' ``.npz`` ``dst``; UserError when a dataset is missing or
-    has the wrong shape."""
+    """Write BROAD's HDF5 trial ``src`` as the tools' ``.npz`` ``dst``; UserError for a missing or misshapen dataset."""
     import h5py
 
     try:
@@ -153,8 +147,7 @@ _H5_ARRAYS = {"acc": "imu_acc", "gyr": "imu_gyr", "quat": "opt_quat"}
 
 
 def fetch_trial(name: str, directory: Path) -> FetchedTrial:
-    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there; any
-    failure raises UserError and leaves nothing of this trial in ``directory``."""
+    """``directory/NAME.npz``, downloaded, checked and converted unless there; a failure leaves nothing of it."""
     expected = BROAD_FILES[name]
     out = directory / f"{name}.npz"
     if out.is_file():

@@ -1,9 +1,8 @@
-"""The firmware patch's link (``firmware_patch/src/stv_link.c`` and ``stv_txq.c``) emulated step by step, for
-``steval synth``: the AHRS step timing, an attitude frame per step (``$ATT`` lines every 16th step in text mode), a
-status frame after every 162nd step (filter-state snapshot, DWT cycle statistics), the boot log as text frames, and
-the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted in ``tx_dropped``;
-attitude and text frames leave room for a status frame). Then the frames as bytes, by the Python encoder or the
-firmware's own C encoder. Timings are the real firmware's under ``steval emulate`` where measurable, else models.
+"""The firmware patch's link (``stv_link.c``, ``stv_txq.c``) step by step for ``steval synth``: AHRS step timing, an
+attitude frame per step (text mode: a ``$ATT`` line every 16th), a status frame every 162nd step, the boot log as
+text frames, and the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted;
+attitude and text frames leave room for a status frame). Then the bytes, by the Python or the firmware's C encoder.
+Timings are the real firmware's under ``steval emulate`` where measurable, else models.
 """
 
 from __future__ import annotations
@@ -45,12 +44,10 @@ Frame = tuple[str, object, float, int]
 
 
 def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
-    """The 170120 firmware's PRINTF lines from power-up (empty lines dropped by the link), with the emulated cycle
-    counts at which they are written. The BlueNRG version and the random BLE address come from ``rng``."""
+    """The 170120 firmware's non-empty PRINTF lines from power-up with their cycle counts; BLE address from rng."""
     uid = rng.integers(0, 256, 4)
     mac = [0xC0, 0x8C, int(uid[0]), int(uid[1]), int(uid[2]), int(uid[3])]
-    # ms after the link starts, as the real firmware writes them under emulation (the sensor lines come after ST's
-    # HAL_Delay(1000); the BlueNRG's own reply times are not modelled there, so the BLE lines' spacing is a guess)
+    # ms after the link starts, as under emulation (after ST's HAL_Delay(1000)); the BLE lines' spacing is a guess
     ms = [
         (0.02, "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017"),
         (999.95, "LSM6DSL MEMS Accelerometer initialized and enabled"),
@@ -130,9 +127,8 @@ def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndar
 
 
 def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
-    ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
-    PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
+    """``(begin, cycle noise, TXE-interrupt draw)`` of each AHRS step, begin in CPU cycles since the link started:
+    after its TIM9 tick's ISR (≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
     n_steps = len(step_tick)
     isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
     loop_latency = rng.integers(0, 700, n_steps) + np.where(
@@ -145,10 +141,9 @@ def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
 
 @dataclass
 class LinkEmulation:
-    """``stv_link.c`` of one firmware run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`):
-    ``att`` holds every step's attitude payload, ``thx``/``thy`` its angles (rad, for ``$ATT`` lines), ``snapshots``
-    the filter state after each status step, ``drop`` the frames refused on purpose. It keeps the transmit
-    ``order``, which steps were ``sent`` and the ``status`` records."""
+    """``stv_link.c`` of one run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`): ``att`` the
+    payloads, ``thx``/``thy`` rad, ``snapshots`` the filter after each status step, ``drop`` frames refused on purpose.
+    It keeps the transmit ``order``, which steps were ``sent`` and the ``status`` records."""
 
     att: np.ndarray
     thx: np.ndarray
@@ -186,8 +181,7 @@ class LinkEmulation:
             self._push("text", piece, cyc, P.HEADER_SIZE + len(piece) + P.CRC_SIZE, P.STATUS_FRAME_SIZE)
 
     def step(self, k: int, c0: float, cyc_noise: int, txe_u: float) -> None:
-        """AHRS step ``k`` beginning at cycle ``c0``: its DWT count (the filter plus the TXE interrupts landing in
-        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step."""
+        """AHRS step ``k`` from cycle ``c0``: its DWT count (with the TXE interrupts in it), its frame, status frame."""
         base = AHRS_CYCLES + int(cyc_noise)
         irqs = self.txq.busy_overlap(c0, c0 + base)
         n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)

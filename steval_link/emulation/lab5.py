@@ -84,11 +84,9 @@ def run_simulation(
     estimator_options: dict | None = None,
     dt_s: float | None = None,
 ) -> SimulationResult:
-    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus
-    white Gaussian noise of the given standard deviations, from power-up. ``seed`` None draws one (recorded in the
-    result). ``dt_s`` (None: the firmware's 6.25 ms) is every estimator's period (st-mahony's ``dt_s``, the others'
-    ``rate_hz`` when they take it) unless its options set their own. ValueError for bad inputs, an unknown
-    estimator or options it does not take."""
+    """``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus white Gaussian noise of
+    these standard deviations, from power-up. ``seed`` None draws one (recorded). ``dt_s`` (None: 6.25 ms) is the
+    estimator's period unless its options set their own. ValueError for bad inputs, estimators or options."""
     gyro, acc = _vector3(gyro_mdps, "gyro"), _vector3(acc_mg, "acc")
     iterations, throttle, dt = _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s)
     gyro, acc = np.tile(gyro, (iterations, 1)), np.tile(acc, (iterations, 1))
@@ -153,8 +151,7 @@ def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[i
 
 
 def _timing(estimator: str, dt_s: float) -> dict:
-    """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
-    for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
+    """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s``, ``rate_hz``, or none (accel)."""
     sel = registry.resolve(estimator)
     if sel.reference.kind == "builtin" and sel.reference.source == "st-mahony":
         return {"dt_s": dt_s}
@@ -164,8 +161,7 @@ def _timing(estimator: str, dt_s: float) -> dict:
 
 
 def _own_dt(est, options: dict) -> float | None:
-    """The period an estimator integrates with: from its ``rate_hz`` option, else its own ``dt``/``dt_s`` attribute;
-    None when it says none (accel does not integrate)."""
+    """The period an estimator integrates with (its ``rate_hz`` option, else its ``dt``/``dt_s``), else None."""
     if "rate_hz" in options:
         return 1.0 / float(options["rate_hz"])
     inner = getattr(est, "inner", est)  # a user's estimator behind the guard

@@ -54,10 +54,9 @@ def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
 
 
 def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int = 0) -> tuple[bytes, list[bytes]]:
-    """About ``n_frames`` v2 attitude frames (plus the status frames among them) made of the payload records ``att``
-    (ATTITUDE_DTYPE, consecutive steps) and ``sta`` (STATUS_DTYPE of the same steps), repeated with ``seq``, ``step``
-    and ``t_us`` continued; repetition numbers start at ``start_rep`` (so consecutive blocks continue each other).
-    Returns the bytes and the list of the frames' payloads (what a perfect decoder hands out)."""
+    """About ``n_frames`` v2 attitude frames (and the status frames among them) of the records ``att`` and ``sta``
+    (consecutive steps), repeated with ``seq``, ``step`` and ``t_us`` continued from repetition ``start_rep``.
+    Returns the bytes and the frames' payloads (what a perfect decoder hands out)."""
     n = len(att)
     out = bytearray()
     payloads: list[bytes] = []

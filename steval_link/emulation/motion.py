@@ -91,8 +91,7 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
 def render(
     name: str, kin: Kinematics, t: np.ndarray, rng: np.random.Generator, throttle: Callable | None = None
 ) -> MotionProfile:
-    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` (a function of time, see
-    :func:`parse_throttle`) overrides the scenario's."""
+    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` overrides its own."""
     t = np.asarray(t, dtype=np.float64)
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
@@ -108,10 +107,9 @@ def render(
     g_plus_a = a + np.array([0.0, 0.0, 1000.0])
     f = np.einsum("nji,nj->ni", rot, g_plus_a)  # Rᵀ (a + g ẑ)
     if kin.airborne is not None:
-        w = kin.airborne(t)[:, None]
-        fz = g_plus_a[:, 2] / np.maximum(rot[:, 2, 2], 0.2)
-        thrust = np.stack([np.zeros_like(fz), np.zeros_like(fz), fz], axis=-1)
-        f = (1 - w) * f + w * thrust
+        w = kin.airborne(t)
+        f = (1 - w[:, None]) * f
+        f[:, 2] += w * (g_plus_a[:, 2] / np.maximum(rot[:, 2, 2], 0.2))  # thrust along body z
     # throttle: the RC receiver updates gTHR at ~50 Hz, integer units with ±1 jitter while the stick is up
     thr_fn = throttle if throttle is not None else kin.thr
     t_rc = np.floor(t * RC_RATE_HZ) / RC_RATE_HZ
@@ -130,8 +128,7 @@ def render(
 
 
 def parse_throttle(spec: str) -> Callable:
-    """``--throttle``: ``N`` (constant) or ``t:v,t:v,...`` (s since power-up : gTHR, linear in between, held
-    outside). Raises :class:`UserError` for anything else."""
+    """``N`` (constant) or ``t:v,t:v,...`` (s since power-up : gTHR, linear in between, held outside) as a function."""
     text = spec.strip()
     try:
         pairs = [item.split(":") for item in text.split(",")] if ":" in text else [("0", text)]
@@ -150,9 +147,8 @@ def parse_throttle(spec: str) -> Callable:
 
 
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:
-    """A BROAD trial at tick times ``t_s``, trial time 0 at the first TIM9 tick ``first_tick_s``: acc linearly
-    resampled, the gyro a 416 Hz sample-and-hold of the trial's measurements (``measured``). Throttle 0 (hand-held)
-    unless ``throttle`` is given."""
+    """A BROAD trial at tick times ``t_s``, trial time 0 at ``first_tick_s``: acc interpolated, the gyro a 416 Hz
+    sample-and-hold of its measurements. Throttle 0 (hand-held) unless ``throttle`` is given."""
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s
     if t_rel[-1] > t_trial[-1] + 1e-9:
@@ -190,8 +186,7 @@ class Vibration:
 
 
 def parse_vibration(spec: str) -> Vibration:
-    """``--vibration``: ``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg).
-    Raises :class:`UserError` for anything else."""
+    """``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg)."""
     bad = ParamError(
         f"{{vibration}} takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
         f"mdps), e.g. gyro-x:47:2000; got {spec!r}",
@@ -211,8 +206,7 @@ def parse_vibration(spec: str) -> Vibration:
 
 
 def add_vibrations(profile: MotionProfile, vibrations: list[Vibration]) -> MotionProfile:
-    """``profile`` with the sinusoids ``vibrations`` (:class:`Vibration`) added: acc at each tick time, gyro at the
-    time its 416 Hz output register was last refreshed (as the motion's own gyro values)."""
+    """``profile`` plus ``vibrations``: acc at each tick, gyro when its 416 Hz output register was last refreshed."""
     if not vibrations:
         return profile
     t = np.asarray(profile.t_s, dtype=np.float64)

@@ -26,6 +26,8 @@ Host → drone bytes (:meth:`Emulation.send_at`, :meth:`Emulation.send`) reach U
 from __future__ import annotations
 
 import functools
+import heapq
+import itertools
 import math
 import queue
 import time
@@ -102,7 +104,6 @@ class ScenarioMotion:
             raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
         self.name = name
         self._mount = None if mount is None else MOUNTS[mount]
-        self.total_s = total_s
         self.seed = seed
         self.trial = trial
         self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
@@ -226,9 +227,7 @@ class EmulationReport:
                 f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
                 f"min {d.min()} median {int(np.median(d))} max {d.max()}"
             )
-        irq = ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))
-        out.append(f"interrupts: {irq}")
-        return out
+        return [*out, "interrupts: " + ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))]
 
 
 _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
@@ -296,16 +295,15 @@ class Emulation:
         self.step_start_observers: list[Callable[[Board], None]] = []
         self.step_end_observers: list[Callable[[Board], None]] = []
         self._dwt: list[int] = []
-        self._step_start = None
-        self._cyc_start = None
+        self._step_start = None  # (instructions, exception instructions, CYCCNT) at the step's start
         self._first_step_s: float | None = None
         self.n_steps = 0
         self._wall_s = 0.0
         self._bytes = 0
         self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
-        self._host_sched: list[tuple[int, int, bytes]] = []  # (instruction count, order, bytes) not yet on the line
+        self._host_sched: list[tuple[int, int, bytes]] = []  # heap of (instruction count, order, bytes) to send
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
-        self._host_order = 0
+        self._host_order = itertools.count()
         self._install_step_probes()
         self.board.hci_handler = bluenrg
         tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
@@ -323,9 +321,7 @@ class Emulation:
             raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
         t = max(int(round(t_s * C.CPU_HZ)), self.board.now)
         self.board.usart1.inject(bytes(data), t)
-        self._host_order += 1
-        self._host_sched.append((t, self._host_order, bytes(data)))
-        self._host_sched.sort()
+        heapq.heappush(self._host_sched, (t, next(self._host_order), bytes(data)))
 
     def send(self, data: bytes) -> None:
         """Queue ``data`` (host → drone) from any thread: it goes on the RX line at the start of the next slice."""
@@ -346,7 +342,7 @@ class Emulation:
             self.send_at(data, self.board.now / C.CPU_HZ)
         now = self.board.now
         while self._host_sched and self._host_sched[0][0] <= now:
-            t, _, data = self._host_sched.pop(0)
+            t, _, data = heapq.heappop(self._host_sched)
             self._host_sent.append((data, t / C.CPU_HZ))
 
     # -- the remote control and the TIM9 tick
@@ -400,8 +396,7 @@ class Emulation:
             b.probe(end, self._on_step_end)
 
     def _on_step_start(self, board: Board) -> None:
-        self._step_start = (board.instructions_now(), board.exception_instructions)
-        self._cyc_start = board.scs.cyccnt()
+        self._step_start = (board.instructions_now(), board.exception_instructions, board.scs.cyccnt())
         if self._first_step_s is None:
             self._first_step_s = board.now / C.CPU_HZ
         for ob in self.step_start_observers:
@@ -410,12 +405,12 @@ class Emulation:
     def _on_step_end(self, board: Board) -> None:
         if self._step_start is None:
             return
-        i0, x0 = self._step_start
+        i0, x0, c0 = self._step_start
         n = board.instructions_now() - i0 - (board.exception_instructions - x0)
         self.n_steps += 1
         if len(self._steps) < 100_000:
             self._steps.append(n)
-            self._dwt.append(board.scs.cyccnt() - self._cyc_start)
+            self._dwt.append(board.scs.cyccnt() - c0)
         self._step_start = None
         for ob in self.step_end_observers:
             ob(board)
@@ -444,8 +439,7 @@ class Emulation:
         """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
         b = self.board
         end = int(round(self.duration_s * C.CPU_HZ))
-        last_byte_t = 0
-        last_steps, last_progress_t = 0, 0
+        last_byte_t = last_steps = last_progress_t = 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
         while b.now < end:
             self._host_progress()

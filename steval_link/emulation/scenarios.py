@@ -87,7 +87,7 @@ class Steps:
         self.moves.append((float(t0), float(dur), float(delta)))
 
     def _index(self, t):
-        """(t0, dur, delta of the moves; at each t the index of the last move begun (−1: none), clipped to ≥ 0)."""
+        """t0, dur, delta of the moves; at each t the last move begun (−1: none), and that clipped to ≥ 0."""
         m = np.array(self.moves, dtype=np.float64).reshape(-1, 3)
         i = np.searchsorted(m[:, 0], t, side="right") - 1
         return m[:, 0], m[:, 1], m[:, 2], i, np.clip(i, 0, len(m) - 1)
@@ -185,9 +185,7 @@ SCENARIOS: dict[str, Scenario] = {}
 
 
 def _scenario(name: str, default_duration_s: float, min_duration_s: float):
-    """Registers the decorated builder ``(T, rng) -> Kinematics`` as the built-in scenario ``name``."""
-
-    def register(build):
+    def register(build):  # the builder ``(T, rng) -> Kinematics`` becomes the built-in scenario ``name``
         SCENARIOS[name] = Scenario(name, " ".join(build.__doc__.split()), default_duration_s, min_duration_s, build)
         return build
 
@@ -307,8 +305,7 @@ def _yaw_spin(T: float, rng) -> Kinematics:
 
 
 def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero), yaw_gain=1.0, yaw_extra=_zero):
-    """``ground``'s motion until a take-off at t0, then a hover with attitude wander (plus the ``steer`` responses
-    of thx, thy), landing before T: throttle, airborne weight and altitude."""
+    """``ground``'s motion, then from t0 a hover with attitude wander (plus ``steer`` of thx, thy), landing by T."""
     t_land = T - 6.0
     thr = Steps()
     thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
@@ -318,9 +315,7 @@ def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero)
     thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
     air = Steps(0.0, [(t0 + 2.0, 0.4, 1.0), (t_land + 2.3, 0.3, -1.0)])
     climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
-    fly = Steps(
-        0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)]
-    )  # the wander fades in and out around take-off, landing
+    fly = Steps(0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)])  # the wander fades in and out
     wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
     yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
 
@@ -464,8 +459,7 @@ def _preflight(T: float, rng) -> Kinematics:
 
 
 def scenario(name: str, otherwise: str) -> Scenario:
-    """The built-in scenario ``name``; :class:`UserError` naming the built-in ones and ``otherwise`` (the other
-    choice where the error is raised, e.g. "or {broad} TRIAL.npz") if there is none of that name."""
+    """The built-in scenario ``name``; else an error naming them and ``otherwise`` (e.g. "or {broad} TRIAL.npz")."""
     if name not in SCENARIOS:
         raise ParamError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})", "broad")
     return SCENARIOS[name]

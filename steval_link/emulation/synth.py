@@ -1,13 +1,11 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
-``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
-drops, the adapter model, text-mode logs. The chain: motion (a scenario or a BROAD trial) → the LSM6DSL and the
-ISR pipeline → the bit-exact ``ahrs_fusion_ag`` replica → the patch's link and TX queue (:mod:`.fw_link`) → a
-USB-UART adapter (:func:`host_chunks`) → a ``.stv`` capture or the plain bytes.
+``steval emulate`` runs the real firmware; synth does what only it does: joining mid-frame, injected drops, the
+adapter model, text-mode logs. Motion (a scenario or a BROAD trial) → LSM6DSL and ISR pipeline → the bit-exact
+``ahrs_fusion_ag`` replica → the link and TX queue (:mod:`.fw_link`) → a USB-UART adapter (:func:`host_chunks`).
 
-Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's zero-rate drift after
-calibration, the BLE module's banner values, the adapter. The same :class:`SynthOptions` give the same bytes
-(seeded generators; capture start time :data:`EPOCH_UNIX_S` + the join time).
+Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's drift after calibration, the BLE
+banner values, the adapter. The same :class:`SynthOptions` give the same bytes (capture start :data:`EPOCH_UNIX_S`).
 """
 
 from __future__ import annotations
@@ -130,8 +128,7 @@ def _check(opts: SynthOptions) -> None:
 
 
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Slow zero-rate drift after the power-up calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over
-    minutes, so the calibrated offset is not perfect and the filter's integral terms have work to do."""
+    """Slow zero-rate drift after calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over minutes."""
     out = np.empty((len(t_s), 3))
     for i in range(3):
         f = rng.uniform(0.002, 0.02, 3)
@@ -142,8 +139,7 @@ def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def _span(opts: SynthOptions):
-    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end); UserError for
-    an unknown scenario or a span too short for the firmware's 2 s calibration."""
+    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end)."""
     is_path = opts.scenario.endswith(".npz") or os.sep in opts.scenario or "/" in opts.scenario
     trial = load_trial(opts.scenario) if is_path else None
     sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
@@ -182,8 +178,7 @@ def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings)
 
 
 def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None = None) -> SynthResult:
-    """Emulate the drone end to end for ``opts``; deterministic for given options (see the module docstring).
-    ``progress(fraction, stage)`` is called as the stages advance (e.g. ``steval_link.cli.progress``)."""
+    """The modelled drone end to end for ``opts``; ``progress(fraction, stage)`` is called as the stages advance."""
     _check(opts)
     if progress is None:
         progress = lambda fraction, stage="": None  # noqa: E731
@@ -224,8 +219,7 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
 
 
 def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
-    """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
-    the firmware's ISR and main-loop averaging. Returns (profile, ISR result)."""
+    """(profile, ISR result): the motion and the LSM6DSL at every TIM9 tick to the capture's end, then the ISR."""
     first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
     n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
     progress(0.0, "motion profile")
@@ -263,8 +257,7 @@ def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_s
 
 
 def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
-    """The bytes the link sent, in transmit order, as the host receives them from the join time on: (data, chunk
-    offsets, chunk times, frame counts)."""
+    """(data, chunk offsets, chunk times, frame counts) the host receives from the join time on."""
     order = link.order
     if opts.encoder == "c":
         stream = fwl.encode_c(order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
