@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import struct
+import uuid
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,10 +56,8 @@ class EmulatedBlueNrg:
             return struct.pack("<BH", 0, self._alloc(16))
         if (ogf, ocf) == GATT_ADD_CHAR and len(params) >= 5:
             handle = self._alloc(3)  # declaration, value, CCCD
-            uuid = params[3 : 3 + (16 if params[2] == UUID_TYPE_128 else 2)][::-1].hex()
-            self.char_id_of_handle[handle] = char_id_of_uuid(
-                f"{uuid[:8]}-{uuid[8:12]}-{uuid[12:16]}-{uuid[16:20]}-{uuid[20:]}"
-            )
+            raw = params[3 : 3 + (16 if params[2] == UUID_TYPE_128 else 2)][::-1]
+            self.char_id_of_handle[handle] = char_id_of_uuid(uuid.UUID(bytes=raw) if len(raw) == 16 else raw.hex())
             return struct.pack("<BH", 0, handle)
         if (ogf, ocf) == GATT_UPD_CHAR_VAL and len(params) >= 6:
             _serv, char, _off, length = struct.unpack_from("<HHBB", params)
@@ -71,8 +70,7 @@ class EmulatedBlueNrg:
         return b""
 
 
-#: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
-#: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")
+#: the name the 170120 firmware advertises, and the address it derives from this board's unique ID (its banner)
 EMULATED_NAME = "DRN1110"
 EMULATED_ADDRESS = "C0:28:38:35:21:34"
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,8 +21,7 @@ from steval_link.errors import UserError, printable
 
 BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"  #: the dataset repository's commit the hashes belong to
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"
-#: the trials `steval evaluate`'s table and the course project use
-DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")
+DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")  #: the trials `steval evaluate`'s table and the course use
 ATTRIBUTION = (
     'BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD - A Benchmark for Robust Inertial Orientation '
     'Estimation", Data 6(7), 2021, doi:10.3390/data6070072; licensed CC BY 4.0 '
@@ -154,11 +152,11 @@ def fetch_trial(name: str, directory: Path) -> FetchedTrial:
         return FetchedTrial(name, out, False, 0)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=".partial-", dir=directory))
+        partial = tempfile.TemporaryDirectory(prefix=".partial-", dir=directory, ignore_cleanup_errors=True)
     except OSError as exc:
         raise UserError(f"cannot write the data folder {directory} ({exc.strerror or exc})") from None
-    try:
-        hdf5 = _download(f"{os.environ.get('STEVAL_BROAD_URL', _DEFAULT_URL).rstrip('/')}/{name}.hdf5", work)
+    with partial as work:
+        hdf5 = _download(f"{os.environ.get('STEVAL_BROAD_URL', _DEFAULT_URL).rstrip('/')}/{name}.hdf5", Path(work))
         data = hdf5.read_bytes()
         got = git_blob_sha1(data)
         if got != expected:
@@ -166,12 +164,10 @@ def fetch_trial(name: str, directory: Path) -> FetchedTrial:
                 f"BROAD {name}: the download ({len(data)} bytes) does not match its recorded hash "
                 f"(git blob {got[:12]}, expected {expected[:12]}), so it was not kept; try again later"
             )
-        npz = work / f"{name}.npz"
+        npz = Path(work) / f"{name}.npz"
         convert_hdf5(hdf5, npz)
         os.replace(npz, out)
         return FetchedTrial(name, out, True, len(data))
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def _download(url: str, folder: Path) -> Path:

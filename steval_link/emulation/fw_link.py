@@ -101,14 +101,6 @@ class TxQueue:
         self.peak = max(self.peak, used + n)
         return start
 
-    def take_peak(self, t: float) -> int:
-        p, self.peak = self.peak, self.used(t)
-        return p
-
-    def busy_overlap(self, t0: float, t1: float) -> float:
-        """Bytes the UART finishes between t0 and t1 (for the TXE interrupts landing in an AHRS step)."""
-        return max(0.0, min(self.busy_until, t1) - t0) / self.tau
-
 
 def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndarray:
     """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts (mean 3 frames) separated by
@@ -183,7 +175,7 @@ class LinkEmulation:
     def step(self, k: int, c0: float, cyc_noise: int, txe_u: float) -> None:
         """AHRS step ``k`` from cycle ``c0``: its DWT count (with the TXE interrupts in it), its frame, status frame."""
         base = AHRS_CYCLES + int(cyc_noise)
-        irqs = self.txq.busy_overlap(c0, c0 + base)
+        irqs = max(0.0, min(self.txq.busy_until, c0 + base) - c0) / self.txq.tau  # bytes the UART finishes in it
         n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)
         cyc = base + n_irq * TXE_IRQ_CYCLES
         c1 = c0 + cyc
@@ -220,20 +212,13 @@ class LinkEmulation:
         snap = self.snapshots[len(self.status)]
         s = self.settings
         rec = np.zeros((), dtype=P.STATUS_DTYPE)
-        rec["step"] = k
-        rec["t_us"] = self.att[k]["t_us"]
-        rec["q_wxyz"] = snap.q_wxyz
-        rec["int_xyz"] = snap.int_xyz
+        rec["step"], rec["t_us"], rec["q_wxyz"], rec["int_xyz"] = k, self.att[k]["t_us"], snap.q_wxyz, snap.int_xyz
         rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
         cyc = self.cycles
         rec["cyc_min"], rec["cyc_max"], rec["cyc_n"] = min(cyc), max(cyc), min(len(cyc), 0xFFFF)
-        rec["cyc_mean"] = sum(cyc) // len(cyc)
-        rec["cpu_hz"] = C.CPU_HZ
-        rec["tx_dropped"] = self.txq.dropped
-        rec["baud"] = self.baud
-        rec["min_thr"] = s.min_thr
-        rec["flags"] = self.flags
-        rec["queue_peak"] = min(self.txq.take_peak(c1), 0xFFFF)
+        rec["cyc_mean"], rec["cpu_hz"], rec["tx_dropped"] = sum(cyc) // len(cyc), C.CPU_HZ, self.txq.dropped
+        rec["baud"], rec["min_thr"], rec["flags"] = self.baud, s.min_thr, self.flags
+        rec["queue_peak"], self.txq.peak = min(self.txq.peak, 0xFFFF), self.txq.used(c1)  # stv_txq_take_peak
         rec["fw_version"] = FW_VERSION
         self.status.append(rec)
         self.cycles = []

@@ -16,11 +16,9 @@ from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
-#: Lab 5 baseline inputs
-BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
+BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)  #: Lab 5 baseline inputs
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)
-#: LSM6DSL typical noise (Lab 5 appendix B), standard deviations
-TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps
+TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps  #: LSM6DSL typical noise (Lab 5 appendix B), standard deviations
 TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 
 
@@ -44,9 +42,7 @@ class SimulationResult:
     eaz_rad: np.ndarray  #: (N,) thz, yaw about z
     valid: np.ndarray  #: (N,) bool, the estimator's validity flag
     settings: dict = field(default_factory=dict)
-    #: the period the estimator integrates with, s (the simulation's when it takes it, else its own); None when it
-    #: does not integrate (accel) or does not say
-    estimator_dt_s: float | None = None
+    estimator_dt_s: float | None = None  #: the period the estimator integrates with, s (None: accel, or unsaid)
 
     @property
     def iterations(self) -> int:

@@ -51,12 +51,6 @@ _H_RATE = 1e-4
 _H_ACC = 2e-3
 
 
-def _body_rate_radps(kin: Kinematics, t) -> np.ndarray:
-    """ω in body axes: 2·vec(q* ⊗ q̇), q̇ by a central difference of the analytic orientation."""
-    dq = (kin.q(t + _H_RATE) - kin.q(t - _H_RATE)) / (2 * _H_RATE)
-    return 2.0 * quat_multiply(quat_conjugate(kin.q(t)), dq)[:, 1:]
-
-
 def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:
     """Earth-frame acceleration of the IMU from rotating about a pivot ``lever_m`` away (second difference)."""
     if not np.any(kin.lever_m):
@@ -96,8 +90,8 @@ def render(
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
     t_hold = sm.gyro_hold_times_s(t, t[0])
-    gyro = _body_rate_radps(kin, t_hold) * RAD_TO_MDPS
-    # specific force
+    dq = (kin.q(t_hold + _H_RATE) - kin.q(t_hold - _H_RATE)) / (2 * _H_RATE)  # q̇ by a central difference
+    gyro = 2.0 * quat_multiply(quat_conjugate(kin.q(t_hold)), dq)[:, 1:] * RAD_TO_MDPS  # ω = 2·vec(q* ⊗ q̇), body
     a = _lever_acc_mps2(kin, t) * MG_PER_MPS2
     if kin.lever_weight is not None:
         a *= kin.lever_weight(t)[:, None]

@@ -49,32 +49,24 @@ from steval_link.errors import ParamError, UserError
 
 __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUNTS", "joydata_bytes"]
 
-#: motion is rendered this many seconds at a time
-WINDOW_S = 10.0
+WINDOW_S = 10.0  #: motion is rendered this many seconds at a time
 _WINDOW_TICKS = int(round(WINDOW_S / C.TICK_PERIOD_S))
-#: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
-WATCHDOG_S = 6.0
+WATCHDOG_S = 6.0  #: the watchdog: no USART1 byte or AHRS step for this long (emulated) → stop, saying where
 
 
 @dataclass
 class EmulationOptions:
     elf: Path | str
     scenario: str = "bench"
-    #: a BROAD trial: its .npz, or a loaded :class:`~steval_link.emulation.broad.BroadTrial`
-    broad: Path | str | BroadTrial | None = None
+    broad: Path | str | BroadTrial | None = None  #: a BROAD trial: its .npz, or loaded
     duration_s: float | None = None
     seed: int = 0
     throttle: str | None = None
     skip_idle: bool = True
-    #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
-    log_samples: int = 0
-    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
+    log_samples: int = 0  #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
     watchdog_s: float = WATCHDOG_S
-    #: the board mounted turned on the frame (a sensor fault, see the module docstring): None, or a MOUNTS key
-    mount: str | None = None
-
-    #: the command line that made this run, for the capture header (the CLI's)
-    command_line: str | None = None
+    mount: str | None = None  #: the board turned on the frame (a sensor fault): None, or a MOUNTS key
+    command_line: str | None = None  #: the command line that made this run, for the capture header (the CLI's)
 
     def settings(self) -> dict:
         """What determines the run (the parameters given), by parameter name."""
@@ -107,8 +99,7 @@ class ScenarioMotion:
         self.seed = seed
         self.trial = trial
         self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
-        # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
-        streams = random_streams(seed)
+        streams = random_streams(seed)  # as steval synth's for the same seed: the same moves and sensor offsets
         if trial is None:
             sc = scenario(name, "or {broad} TRIAL.npz")
             try:
@@ -201,8 +192,7 @@ class EmulationReport:
     ahrs_steps: int
     step_instructions: list[int] = field(default_factory=list)
     dwt_windows: list[int] = field(default_factory=list)
-    #: wall seconds spent in :meth:`Emulation.chunks` (the board and its Python models, not the consumer)
-    wall_s: float = 0.0
+    wall_s: float = 0.0  #: wall seconds spent in :meth:`Emulation.chunks` (not the consumer)
 
     def lines(self) -> list[str]:
         out = [
@@ -271,11 +261,8 @@ class Emulation:
         trial = options.broad  # a path, or already loaded (e.g. cut short by steval evaluate)
         if trial is not None and not isinstance(trial, BroadTrial):
             trial = load_trial(trial)
-        if trial is not None:
-            name, default = trial.name, float(trial.t_s[-1]) + 3.0
-        else:
-            name = options.scenario
-            default = scenario(name, "or {broad} TRIAL.npz").default_duration_s
+        name = options.scenario if trial is None else trial.name
+        default = scenario(name, "or {broad} TRIAL.npz").default_duration_s if trial is None else trial.t_s[-1] + 3.0
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)
@@ -290,8 +277,7 @@ class Emulation:
         self.board.tick_observers.append(self._on_tick)
         self.board.tick_planner = self.plan_ticks
         self._steps: list[int] = []
-        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry, inputs ready) and end (its
-        #: Euler angles computed): a debugger's view of the step (e.g. the firmware's globals read by symbol)
+        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry) and end (Euler angles computed)
         self.step_start_observers: list[Callable[[Board], None]] = []
         self.step_end_observers: list[Callable[[Board], None]] = []
         self._dwt: list[int] = []
@@ -311,7 +297,6 @@ class Emulation:
             start = int(tick_start_ms) & 0xFFFFFFFF
             self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
-    # -- host → drone bytes (USART1 RX)
     def send_at(self, data: bytes, t_s: float) -> None:
         """Schedule ``data`` (host → drone) to start on the RX line at emulated time ``t_s`` (s since power-up), or
         as soon as bytes scheduled before it are through. A time already past means now."""
@@ -334,18 +319,13 @@ class Emulation:
         return out
 
     def _host_progress(self) -> None:
-        while True:
-            try:
-                data = self._live_tx.get_nowait()
-            except queue.Empty:
-                break
-            self.send_at(data, self.board.now / C.CPU_HZ)
+        while not self._live_tx.empty():  # this thread is the one consumer
+            self.send_at(self._live_tx.get_nowait(), self.board.now / C.CPU_HZ)
         now = self.board.now
         while self._host_sched and self._host_sched[0][0] <= now:
             t, _, data = heapq.heappop(self._host_sched)
             self._host_sent.append((data, t / C.CPU_HZ))
 
-    # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
         motion = self.motion
         if motion.trial is not None and motion.first_tick_s is None:
@@ -357,8 +337,7 @@ class Emulation:
         if not self._remote_connected and self._connected is not None:
             central = self._connect_at is not None and board.now >= self._connect_at
             if moves or central or motion.remote_from_start:
-                # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
-                # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
+                # ST's main loop takes gTHR from joydata only while `connected` (and then sends BLE notifications)
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
                 self._remote_connected = True
         if self._remote_connected:
@@ -385,7 +364,6 @@ class Emulation:
         img = np.concatenate([m._gyro[i : i + n], m._acc[i : i + n]], 1).astype("<i2").view(np.uint8)
         return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows[:n, cols]), until
 
-    # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
         b, e = self.board, self.elf
         # ST's filter; else the patch's hook right before it (a build whose filter function has another name)
@@ -415,7 +393,6 @@ class Emulation:
         for ob in self.step_end_observers:
             ob(board)
 
-    # -- the motion's time base
     def tick_index(self) -> int:
         """Motion tick index of the latest TIM9 update (the sample the ISR last read)."""
         return self.bus.tick_index(self.board)
@@ -425,8 +402,7 @@ class Emulation:
         first = self.board.tim9.first_update
         if first is None:
             raise ValueError("TIM9 has not started")
-        k0 = self.bus.tick_index_of_update(1)
-        return (first + (np.asarray(k) - k0) * C.TICK_CYCLES) / C.CPU_HZ
+        return (first + (np.asarray(k) - (self.bus.tick_offset or 0)) * C.TICK_CYCLES) / C.CPU_HZ
 
     def trial_time_s(self, k) -> np.ndarray | float:
         """BROAD runs: trial time (s) of motion tick ``k``, not clipped (a caller tells the ticks outside the trial)."""
@@ -434,7 +410,6 @@ class Emulation:
             raise ValueError("TIM9 has not started")
         return np.asarray(k) * C.TICK_PERIOD_S - self.motion.first_tick_s
 
-    # -- running
     def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:
         """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
         b = self.board

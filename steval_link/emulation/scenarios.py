@@ -180,8 +180,7 @@ class Scenario:
     build: Callable[[float, np.random.Generator], Kinematics]
 
 
-#: Built-in scenarios by name, in the order they are defined below.
-SCENARIOS: dict[str, Scenario] = {}
+SCENARIOS: dict[str, Scenario] = {}  #: built-in scenarios by name, in the order they are defined below
 
 
 def _scenario(name: str, default_duration_s: float, min_duration_s: float):
@@ -387,8 +386,6 @@ def _demo(T: float, rng) -> Kinematics:
 
 #: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
 #: ±EULER_Z_TH turns the yaw target by 60°·SENSOR_SAMPLING_TIME per AHRS step
-_RC_FULLSCALE = float(C.RC_FULLSCALE)
-_MAX_TILT_RAD = C.MAX_TILT_DEG * DEG
 _YAW_STICK_RADPS = 60.0 * C.DT_S * DEG * C.AHRS_RATE_HZ
 
 
@@ -413,7 +410,7 @@ def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
         stick.move(t, 0.3, value)
         stick.move(t + 0.3 + hold, 0.3, -value)
         t += 0.6 + hold + 1.2
-    k = _MAX_TILT_RAD / _RC_FULLSCALE
+    k = C.MAX_TILT_DEG * DEG / C.RC_FULLSCALE
     resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thx = -gELE·k
     resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thy = -gAIL·k
     yaw_rate = Steps()

@@ -24,8 +24,7 @@ _F32 = np.float32
 CALIBRATION_SKIP_TICKS: int = 800  #: ticks ignored after power-up before the offset calibration starts
 CALIBRATION_TICKS: int = 800  #: ticks summed for the offset calibration
 
-#: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
-#: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
+#: gyro output data rate (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); each tick reads the latest: a sample-and-hold
 GYRO_ODR_HZ: float = 416.0
 
 

@@ -16,8 +16,7 @@ from steval_link import constants as C
 from steval_link.emulation.runner import Emulation
 from steval_link.link.capture import SYMBOL_DTYPE
 
-#: the globals read, in the order the rows hold them
-SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")
+SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")  #: the globals read, in the rows' order
 
 _READ_INPUTS, _READ_Q, _READ_EULER = 1, 2, 4
 

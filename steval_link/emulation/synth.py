@@ -184,7 +184,27 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
         progress = lambda fraction, stage="": None  # noqa: E731
     rs = random_streams(opts.seed)
     trial, sc, duration, total = _span(opts)
-    profile, isr = _sensed(opts, rs, trial, sc, total, progress)
+    # 1-3: the motion and the LSM6DSL at every TIM9 tick to the capture's end, then the ISR
+    first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
+    n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
+    progress(0.0, "motion profile")
+    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
+    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
+    if trial is not None:
+        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
+    else:
+        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
+    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
+    gyro_true = profile.gyro_mdps
+    if profile.measured:
+        sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
+    else:
+        sensor = sm.seeded_lsm6dsl(rs.sensor)
+        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
+    progress(0.55, "LSM6DSL model")
+    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
+    progress(0.6, "ISR pipeline")
+    isr = sm.run_isr(acc_raw, gyro_raw)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     thr_step = thr_tick[isr.step_tick]
@@ -208,38 +228,19 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
         link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]))
     status = link.status_table()
 
-    # 6-7: the bytes in transmit order, and the host
+    # 6-7: the bytes in transmit order, as the host receives them from the join time on
     progress(0.95, "encoding frames")
-    data, chunk_offsets, chunk_times, counts = _received(opts, link, att, rs.host, total)
+    if opts.encoder == "c":
+        stream = fwl.encode_c(link.order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
+    else:
+        stream = fwl.encode(link.order, att)
+    offsets, chunk_offsets, chunk_times = host_chunks(stream, link.order, link.txq.tau, opts.join_at_s, rs.host, total)
+    data, counts = stream[offsets[0] : offsets[1]], fwl.count_frames(link.order, offsets)
     dropped = link.txq.dropped
     header = _header(opts, profile.name, duration)
     return SynthResult(
         data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, begin / C.CPU_HZ, counts
     )
-
-
-def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
-    """(profile, ISR result): the motion and the LSM6DSL at every TIM9 tick to the capture's end, then the ISR."""
-    first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
-    n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
-    progress(0.0, "motion profile")
-    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
-    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
-    if trial is not None:
-        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
-    else:
-        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
-    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
-    gyro_true = profile.gyro_mdps
-    if profile.measured:
-        sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
-    else:
-        sensor = sm.seeded_lsm6dsl(rs.sensor)
-        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
-    progress(0.55, "LSM6DSL model")
-    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
-    progress(0.6, "ISR pipeline")
-    return profile, sm.run_isr(acc_raw, gyro_raw)
 
 
 def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_step: np.ndarray) -> np.ndarray:
@@ -256,31 +257,20 @@ def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_s
     return att
 
 
-def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
-    """(data, chunk offsets, chunk times, frame counts) the host receives from the join time on."""
-    order = link.order
-    if opts.encoder == "c":
-        stream = fwl.encode_c(order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
-    else:
-        stream = fwl.encode(order, att)
-    sizes = np.array([o[3] for o in order], dtype=np.int64)
-    starts = np.array([o[2] for o in order], dtype=np.float64)
-    offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
-    return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
-
-
 #: data bytes per USB packet, latency timer, USB frame
 ADAPTER_PACKET_BYTES = 62
 ADAPTER_LATENCY_S = 0.016
 USB_FRAME_S = 0.001
 
 
-def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng, total_s: float):
-    """What the host receives through a USB-UART adapter (FTDI FT232R-like) in [join, join + duration]: ``((first,
-    end) stream offsets of the captured bytes, USB packet offsets, their receive times s since the join)``."""
+def host_chunks(stream: bytes, order: list[fwl.Frame], tau: float, join_at_s: float, rng, total_s: float):
+    """What the host receives of the frames ``order`` through a USB-UART adapter (FT232R-like) in [join, total_s]:
+    ``((first, end) stream offsets of the captured bytes, USB packet offsets, their receive times s since join)``."""
     n = len(stream)
     if n == 0:
         return (0, 0), np.zeros(0, np.int64), np.zeros(0)
+    sizes = np.array([o[3] for o in order], dtype=np.int64)
+    starts = np.array([o[2] for o in order], dtype=np.float64)
     frame_off = np.concatenate(([0], np.cumsum(sizes)[:-1]))
     rep_start = np.repeat(starts, sizes)
     idx = np.arange(n, dtype=np.float64) - np.repeat(frame_off, sizes)
