@@ -1,14 +1,12 @@
-"""BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, conversion to firmware units, the STEVAL view of a trial,
-the ground-truth error metrics, and the truth each AHRS step of an emulated run saw (:class:`StepTruth`).
+"""BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, firmware units, the STEVAL view of a trial, the error
+metrics, and the truth each AHRS step of an emulated run saw (:class:`StepTruth`).
 
-A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN rows where the
-markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz). The IMU axes match the firmware's (x right,
-y forward, z up).
+A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN where the
+markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz); the IMU axes are the firmware's.
 
 Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame); RMSE over ``movement`` samples ignoring NaN.
-Estimates are body → earth quaternions, like the firmware's (its gravity estimate is the third row of R(q), so its
-q maps body vectors to the earth frame, as BROAD's IMU → ENU). A constant heading offset leaves the inclination
-error unchanged, so 6-axis estimators are compared on inclination only.
+Estimates are body → earth quaternions, like the firmware's and BROAD's IMU → ENU. A constant heading offset
+leaves the inclination error unchanged, so 6-axis estimators are compared on inclination only.
 """
 
 from __future__ import annotations
@@ -86,8 +84,7 @@ def load_trial(path) -> BroadTrial:
 
 
 def trial_paths(items) -> list[Path]:
-    """Expand DATA arguments: directories become their ``*.npz`` (sorted, ground-truth sidecars ``*.truth.npz``
-    left out); files stay. Missing → UserError."""
+    """DATA arguments expanded: a directory's ``*.npz`` (sorted, no ``*.truth.npz`` sidecars); files stay."""
     out: list[Path] = []
     for item in items:
         p = Path(item)
@@ -142,8 +139,7 @@ class SteValView:
 
 
 def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
-    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
-    interpolated, movement at the nearest sample; NaN / False outside the trial."""
+    """(q_wxyz (M, 4), movement (M,)) at trial times ``t_trial_s``: q interpolated; NaN / False outside the trial."""
     t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
     t_end = float(trial.t_s[-1])
     inside = (t >= 0.0) & (t <= t_end)
@@ -172,8 +168,7 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
     except ValueError as exc:
         raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
     t_step = t_tick[out.step_tick - (C.FIFO_ORDER // 2)]
-    q, mov = truth_at_trial_time(trial, t_step)
-    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, C.AHRS_RATE_HZ)
+    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, *truth_at_trial_time(trial, t_step), C.AHRS_RATE_HZ)
 
 
 def own_rate_view(trial: BroadTrial) -> SteValView:
@@ -211,10 +206,7 @@ class StepTruth:
         self.trial: BroadTrial = emu.motion.trial
         self._last_tick: list[int] = []
         self._taken = 0
-        emu.step_start_observers.append(self._on_step_start)
-
-    def _on_step_start(self, board) -> None:
-        self._last_tick.append(self.emu.tick_index())
+        emu.step_start_observers.append(lambda board: self._last_tick.append(emu.tick_index()))
 
     @property
     def last_ticks(self) -> np.ndarray:
@@ -227,12 +219,10 @@ class StepTruth:
         mid = ticks - C.FIFO_ORDER // 2
         step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
         if ticks.shape[0] == 0:
-            empty = np.zeros(0)
-            return TruthRows(step, empty, empty, np.zeros((0, 4)), np.zeros(0, dtype=bool))
+            return TruthRows(step, np.zeros(0), np.zeros(0), *truth_at_trial_time(self.trial, np.zeros(0)))
         t_trial = np.asarray(self.emu.trial_time_s(mid), dtype=np.float64)
         t_emu = np.asarray(self.emu.tick_time_s(mid), dtype=np.float64)
-        q, mov = truth_at_trial_time(self.trial, t_trial)
-        return TruthRows(step, t_emu, t_trial, q, mov)
+        return TruthRows(step, t_emu, t_trial, *truth_at_trial_time(self.trial, t_trial))
 
     def take(self) -> TruthRows:
         """The truth of the steps recorded since the last call (for a capture's truth chunks as it grows)."""

@@ -38,15 +38,13 @@ TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
 
-#: one frame in transmit order: (kind "att" | "status" | "text" | "raw", the attitude row or the payload, the cycle
-#: time its first byte starts, its size in bytes)
+#: a frame in transmit order: (kind att/status/text/raw, attitude row or payload, first byte's cycle time, bytes)
 Frame = tuple[str, object, float, int]
 
 
 def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
     """The 170120 firmware's non-empty PRINTF lines from power-up with their cycle counts; BLE address from rng."""
-    uid = rng.integers(0, 256, 4)
-    mac = [0xC0, 0x8C, int(uid[0]), int(uid[1]), int(uid[2]), int(uid[3])]
+    mac = [0xC0, 0x8C, *(int(v) for v in rng.integers(0, 256, 4))]
     # ms after the link starts, as under emulation (after ST's HAL_Delay(1000)); the BLE lines' spacing is a guess
     ms = [
         (0.02, "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017"),
@@ -71,8 +69,7 @@ def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
         (1025.0, "Console Service W2ST added successfully"),
         (1026.0, "Config  Service W2ST added successfully"),
     ]
-    jitter = rng.uniform(0.0, 0.03, len(ms))
-    return [(int((t + j) * C.CPU_HZ / 1000), text) for (t, text), j in zip(ms, jitter)]
+    return [(int((t + j) * C.CPU_HZ / 1000), text) for (t, text), j in zip(ms, rng.uniform(0.0, 0.03, len(ms)))]
 
 
 class TxQueue:
@@ -81,13 +78,10 @@ class TxQueue:
     def __init__(self, baud: int) -> None:
         self.tau = 10.0 * C.CPU_HZ / baud  # cycles per byte
         self.busy_until = 0.0  # cycle time the last queued byte has been shifted out
-        self.dropped = 0
-        self.peak = 0
+        self.dropped = self.peak = 0
 
     def used(self, t: float) -> int:
         """Bytes still in the queue at ``t`` (one byte sits in the shift register, one in DR)."""
-        if self.busy_until <= t:
-            return 0
         return max(0, math.ceil((self.busy_until - t) / self.tau - 1e-9) - 2)
 
     def push(self, t: float, n: int, keep_free: int) -> float | None:
@@ -103,8 +97,7 @@ class TxQueue:
 
 
 def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndarray:
-    """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts (mean 3 frames) separated by
-    geometric gaps, so the long-run fraction is ``rate``."""
+    """(n,) bool: attitude frames refused on purpose: bursts (mean 3) at geometric gaps, ``rate`` in the long run."""
     out = np.zeros(n_steps, dtype=bool)
     if rate <= 0 or n_steps == 0:
         return out

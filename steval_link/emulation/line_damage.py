@@ -27,14 +27,12 @@ def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
     """``data`` with one damage event every 200 .. 5000 bytes (uniform): a single bit flip (60 %), a cut of 1 .. 16
     bytes (20 %) or a burst of 1 .. 64 random bytes inserted (20 %)."""
     n = len(data)
-    gaps = rng.integers(200, 5000 + 1, size=n // 200 + 2)
-    pos = np.cumsum(gaps)
+    pos = np.cumsum(rng.integers(200, 5000 + 1, size=n // 200 + 2))
     pos = pos[pos < n]
-    kinds = rng.random(len(pos))
     out = bytearray()
     counts = DamageCounts()
     last = 0
-    for p, k in zip(pos.tolist(), kinds.tolist()):
+    for p, k in zip(pos.tolist(), rng.random(len(pos)).tolist()):
         if p < last:
             continue
         out += data[last:p]
@@ -105,8 +103,7 @@ class FuzzScore:
 
 
 def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
-    """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records (ATTITUDE_DTYPE,
-    STATUS_DTYPE): what the firmware sent, field for field."""
+    """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records, field for field."""
     out = []
     for rows, dtype in ((tel.attitude, P.ATTITUDE_DTYPE), (tel.status, P.STATUS_DTYPE)):
         rec = np.zeros(len(rows), dtype)
@@ -117,8 +114,7 @@ def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
 
 
 def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
-    """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
-    and the fake payloads (for a report)."""
+    """The score of a decoded ``Telemetry``'s attitude and status frames against the payloads sent, and the fakes."""
     sent = set(sent_payloads)
     got = [r.tobytes() for rows in payload_records(tel) for r in rows]
     fakes = [g for g in got if g not in sent]

@@ -110,13 +110,10 @@ class ScenarioMotion:
                     f"{sc.default_duration_s:g} s), got {total_s:g}",
                     "duration_s",
                 ) from None
-        #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
-        self.remote_from_start = trial is None and self._kin.sticks is not None
+        self.remote_from_start = trial is None and self._kin.sticks is not None  #: sticks: connected at power-up
         self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
-        #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
-        self._rendered = functools.lru_cache(maxsize=2)(self._render)
-        self._acc = self._gyro = self._thr = self._sticks = self._armed = self._joydata = None
+        self._rendered = functools.lru_cache(maxsize=2)(self._render)  # the remote reads a tick ahead: 2 windows
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
     def _render(self, w: int) -> tuple:
@@ -127,15 +124,13 @@ class ScenarioMotion:
         rng = np.random.default_rng([self.seed, 3, w])
         if self.trial is not None:
             t0 = self.first_tick_s if self.first_tick_s is not None else 1.0
-            rel = np.clip(t - t0, 0.0, self.trial.t_s[-1])
-            prof = M.broad_profile(self.trial, t0 + rel, t0, self._thr_fn)
+            prof = M.broad_profile(self.trial, t0 + np.clip(t - t0, 0.0, self.trial.t_s[-1]), t0, self._thr_fn)
             acc, gyro = prof.acc_mg, prof.gyro_mdps
         else:
             prof = M.render(self.name, self._kin, t, rng, self._thr_fn)
             s = self.sensor
             acc = prof.acc_mg + np.asarray(s.acc_bias_mg) + s.acc_noise_mg * rng.standard_normal((n, 3))
-            hold = sm.gyro_hold_index(t)
-            u, inv = np.unique(hold, return_inverse=True)
+            u, inv = np.unique(sm.gyro_hold_index(t), return_inverse=True)  # noise held like the 416 Hz reading
             noise = rng.standard_normal((len(u), 3))[inv]
             gyro = prof.gyro_mdps + np.asarray(s.gyro_bias_mdps) + s.gyro_noise_mdps * noise
         if self._mount is not None:
@@ -143,22 +138,12 @@ class ScenarioMotion:
         acc, gyro = body_to_sensor_counts(acc, gyro)
         return k0, acc, gyro, prof.thr, prof.sticks, prof.armed, _joydata_table(prof.thr, prof.sticks, prof.armed)
 
-    def forget(self) -> None:
-        """Render the windows again (their trial time changed)."""
-        self._window = -1
-        self._rendered.cache_clear()
-
     def _at(self, k: int) -> int:
         w = max(k, 0) // _WINDOW_TICKS
         if w != self._window:
             self._window = w
             self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata = self._rendered(w)
         return max(k, 0) - self._k0
-
-    def window_row(self, k: int) -> int:
-        """Tick ``k``'s row in the window rendered last, -1 if not there."""
-        i = k - self._k0 if self._window >= 0 else -1
-        return i if i < _WINDOW_TICKS else -1
 
     def counts(self, k: int):
         i = self._at(k)
@@ -205,18 +190,16 @@ class EmulationReport:
                 f"TIM9 started at {self.tim9_start_s:.4f} s; first attitude step at "
                 + (f"{self.first_attitude_s:.4f} s" if self.first_attitude_s is not None else "-")
             )
-        if self.step_instructions:
-            a = np.asarray(self.step_instructions)
-            out.append(
-                f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
-                f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}"
-            )
-        if self.dwt_windows and any(self.dwt_windows):
-            d = np.asarray(self.dwt_windows)
-            out.append(
-                f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
-                f"min {d.min()} median {int(np.median(d))} max {d.max()}"
-            )
+        stats = {
+            "instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; instruction counts, "
+            "not M4 cycles)": self.step_instructions,
+            "firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; "
+            "status cyc_*)": self.dwt_windows,
+        }
+        for what, values in stats.items():
+            if any(values):
+                a = np.asarray(values)
+                out.append(f"{what}: min {a.min()} median {int(np.median(a))} max {a.max()}")
         return [*out, "interrupts: " + ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))]
 
 
@@ -298,8 +281,7 @@ class Emulation:
             self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
     def send_at(self, data: bytes, t_s: float) -> None:
-        """Schedule ``data`` (host → drone) to start on the RX line at emulated time ``t_s`` (s since power-up), or
-        as soon as bytes scheduled before it are through. A time already past means now."""
+        """Schedule ``data`` (host → drone) on the RX line at emulated time ``t_s`` (s), after what is before it."""
         if not data:
             return
         if not math.isfinite(t_s) or t_s < 0:
@@ -330,7 +312,8 @@ class Emulation:
         motion = self.motion
         if motion.trial is not None and motion.first_tick_s is None:
             motion.first_tick_s = board.now / C.CPU_HZ
-            motion.forget()  # render again with trial time 0 at this tick
+            motion._window = -1  # render again with trial time 0 at this tick
+            motion._rendered.cache_clear()
         if self._joy is None:
             return
         moves, joy = motion.remote_bytes(self.bus.tick_index(board) + 1)
@@ -340,16 +323,15 @@ class Emulation:
                 # ST's main loop takes gTHR from joydata only while `connected` (and then sends BLE notifications)
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
                 self._remote_connected = True
-        if self._remote_connected:
-            board.ram_write(self._joy + 2, joy)
-        else:
-            board.ram_write(self._joy + 3, joy[1:2])
+        cols = slice(0, 6) if self._remote_connected else slice(1, 2)  # before: the throttle's byte only
+        board.ram_write(self._joy + 2 + cols.start, joy[cols])
 
     def plan_ticks(self, board: Board) -> tuple | None:
         """The next TIM9 updates as tables (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote
         bytes (n, m) uint8, the instruction count it holds until or None); None: the next needs :meth:`_on_tick`."""
         m = self.motion
-        i = m.window_row(self.bus.tick_index(board) + 1)  # the next update's sensor row; the remote reads the next
+        k = self.bus.tick_index(board) + 1  # the next update's sensor row (the remote reads the one after)
+        i = k - m._k0 if m._window >= 0 and k - m._k0 < _WINDOW_TICKS else -1
         n = _WINDOW_TICKS - 1 - i
         if i < 0 or n <= 0 or (self._joy is not None and not self._remote_connected and m.remote_from_start):
             return None
@@ -447,7 +429,6 @@ class Emulation:
 
     def report(self) -> EmulationReport:
         b = self.board
-        tim9 = b.tim9.first_update
         return EmulationReport(
             elf=str(self.elf.path),
             emulated_s=b.now / C.CPU_HZ,
@@ -456,7 +437,7 @@ class Emulation:
             interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
             usart_bytes=self._bytes,
             first_attitude_s=self._first_step_s,
-            tim9_start_s=None if tim9 is None else tim9 / C.CPU_HZ,
+            tim9_start_s=None if b.tim9.first_update is None else b.tim9.first_update / C.CPU_HZ,
             ahrs_steps=self.n_steps,
             step_instructions=list(self._steps),
             dwt_windows=list(self._dwt),

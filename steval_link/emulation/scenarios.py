@@ -1,9 +1,8 @@
-"""The built-in motion scenarios (:data:`SCENARIOS`) and what they are built of: smooth functions of time (float64,
-s since power-up), eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are
-exact derivatives the sensors can sample anywhere. A scenario is a function of the run's length and a random
-generator that returns its :class:`Kinematics`; each starts at rest, so the firmware's offset calibration sees a
-still drone. :mod:`steval_link.emulation.motion` renders them. :func:`random_streams`: the random streams of one
-seed, from which ``steval synth`` and ``steval emulate`` draw the same moves and sensor offsets.
+"""The built-in motion scenarios (:data:`SCENARIOS`), built of smooth functions of time (float64, s since power-up):
+eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are exact derivatives the
+sensors can sample anywhere. A scenario maps the run's length and a random generator to :class:`Kinematics`; each
+starts at rest, so the offset calibration sees a still drone; :mod:`.motion` renders them. :func:`random_streams`:
+one seed's random streams (``steval synth`` and ``steval emulate`` draw the same moves and offsets from them).
 """
 
 from __future__ import annotations
@@ -203,11 +202,9 @@ def _surface_tilt(rng) -> tuple[float, float]:
 
 def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng) -> float:
     """Hand tilts (pitch ±30°, roll ±30°, then both; each out, hold, back, pause) until ``t_end``; when they end."""
-    t = t_start
-    pattern = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)]
-    last = t_start
+    t = last = t_start
     while True:
-        for sx, sy in pattern:
+        for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)):
             amp = rng.uniform(26.0, 34.0) * DEG
             move = rng.uniform(1.0, 1.5)
             hold = rng.uniform(1.0, 2.0)
@@ -283,9 +280,7 @@ def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
 def _yaw_spin(T: float, rng) -> Kinematics:
     """on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0"""
     x0, y0 = _surface_tilt(rng)
-    rate = Steps()
-    t = 4.0
-    sign = 1.0
+    rate, t, sign = Steps(), 4.0, 1.0
     while t + 8.0 <= T:
         w = rng.uniform(160.0, 200.0) * DEG * sign  # a turntable at ~30 rpm
         ramp = rng.uniform(1.2, 2.0)
@@ -306,11 +301,8 @@ def _yaw_spin(T: float, rng) -> Kinematics:
 def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero), yaw_gain=1.0, yaw_extra=_zero):
     """``ground``'s motion, then from t0 a hover with attitude wander (plus ``steer`` of thx, thy), landing by T."""
     t_land = T - 6.0
-    thr = Steps()
-    thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
-    thr.move(t0 + 1.5, 1.0, 140.0)  # take-off throttle ~520
-    thr.move(t_land, 2.0, -140.0)  # descend
-    thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
+    # arm and spool up past MIN_THR (200) on the ground, take off at ~520, descend, disarm
+    thr = Steps(0.0, [(t0, 1.5, 380.0), (t0 + 1.5, 1.0, 140.0), (t_land, 2.0, -140.0), (t_land + 3.0, 1.0, -380.0)])
     thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
     air = Steps(0.0, [(t0 + 2.0, 0.4, 1.0), (t_land + 2.3, 0.3, -1.0)])
     climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
@@ -347,8 +339,7 @@ def _freefall(T: float, rng) -> Kinematics:
     t_pick = 3.0
     drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
     fall_s, catch_s = 0.5, 0.25
-    v_mps = G_MPS2 * fall_s
-    peak = 2 * v_mps / catch_s * MG_PER_MPS2  # Hann pulse with area v
+    peak = 2 * (G_MPS2 * fall_s) / catch_s * MG_PER_MPS2  # Hann pulse with area v = g · fall_s
     heights = [_lift(t_pick, 0.4, 1.0)]
     for td in drops:
         # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
@@ -402,8 +393,7 @@ def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
     """armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed"""
     ground = _bench(T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
-    t = t0 + 5.0
-    hold = 1.6
+    t, hold = t0 + 5.0, 1.6
     for stick, value in ((ele, 700.0), (ail, -700.0), (rud, -900.0)):
         if t + hold + 1.2 > T - 7.0:
             break

@@ -1,12 +1,9 @@
-"""LSM6DSL sensor model and the STEVAL-FCU001V1 firmware's sensor pipeline (ST release 170120), as numpy functions.
+"""LSM6DSL sensor model and the firmware's sensor pipeline (ST release 170120), as numpy functions.
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white noise → int16 ADC counts → the ST
-   driver's integer mg (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
-2. TIM9 ISR at ``constants.ISR_RATE_HZ`` ≈ 807.69 Hz: power-up calibration (:func:`calibrate_offsets`), offset
-   removal (:func:`remove_offsets`), gyro IIR (:func:`gyro_iir`); the acc sample and the IIR output go to 5-sample
-   FIFOs.
-3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz): the boxcar average (:func:`fifo_average`) →
-   ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): motion + bias + noise → int16 ADC counts → the ST driver's mg
+   (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
+2. TIM9 ISR at ≈ 807.69 Hz: power-up calibration, offset removal, gyro IIR; acc and IIR output into 5-sample FIFOs.
+3. Main loop every 5th tick (≈ 161.54 Hz): the boxcar average → ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps).
 
 :func:`run_isr` runs 2–3. Arrays are (N, 3) in the firmware's axes: x right, y forward, z up.
 """
@@ -72,8 +69,7 @@ def driver_value(raw, sensitivity: float) -> np.ndarray:
 
 
 def quantise(value, sensitivity: float) -> np.ndarray:
-    """What the driver returns for a physical value (mg or mdps): int32 (N, 3), saturated at int16 counts
-    (acc: ±3997.7 mg at 0.122 mg/LSB; gyro: ±2293 dps at 70 mdps/LSB). NaN reads as 0."""
+    """What the driver returns for a physical value (mg or mdps): int32, saturated at int16 counts; NaN reads 0."""
     return driver_value(adc_counts(value, sensitivity), sensitivity)
 
 
@@ -117,8 +113,7 @@ def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
 
 
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
-    """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
-    int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
+    """The ISR's offsets (acc, gyro) int32: ``(int32_t)((float)sum * 0.00125f)`` of int32 sums (1/800 always)."""
     sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
     return tuple(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
 
@@ -170,8 +165,7 @@ GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_
 
 
 def fifo_average(fifo) -> np.ndarray:
-    """The main loop's boxcar average of FIFOs, (M, 5, 3) → (M, 3) float32: a float32 sum from 0, then
-    ``*= (1.0/5)`` in double stored to float32, as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``."""
+    """The main loop's boxcar average (M, 5, 3) → (M, 3) float32: a float32 sum, then ``*= (1.0/5)`` in double."""
     f = np.asarray(fifo, dtype=_F32)
     s = np.zeros((f.shape[0], f.shape[2]), dtype=_F32)
     for i in range(f.shape[1]):

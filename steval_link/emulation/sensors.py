@@ -88,8 +88,7 @@ class SensorBus:
         self.served: list[tuple] = []  #: (tick, acc counts, gyro counts)
         self.tick_offset: int | None = None  #: the motion tick of TIM9's first update
         self._last_tick = -1
-        self._cached_k = None
-        self._cached = None
+        self._cached_k = self._cached = None
 
     def tick_index(self, board) -> int:
         tim = board.tim9
@@ -132,8 +131,7 @@ class SensorBus:
             dev.write(reg, data)
 
     def served_driver_readings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads as the firmware's
-        ``ReadSensorRawData`` gets them: driver values in body axes."""
+        """(tick, acc_mg, gyro_mdps) int32 of the logged reads as ``ReadSensorRawData`` gets them (body axes)."""
         ticks = np.array([s[0] for s in self.served], np.int64)
         readings = []
         for j, sens in ((1, sm.ACC_SENSITIVITY_MG), (2, sm.GYRO_SENSITIVITY_MDPS)):

@@ -180,8 +180,7 @@ def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings)
 def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None = None) -> SynthResult:
     """The modelled drone end to end for ``opts``; ``progress(fraction, stage)`` is called as the stages advance."""
     _check(opts)
-    if progress is None:
-        progress = lambda fraction, stage="": None  # noqa: E731
+    progress = progress or (lambda fraction, stage="": None)
     rs = random_streams(opts.seed)
     trial, sc, duration, total = _span(opts)
     # 1-3: the motion and the LSM6DSL at every TIM9 tick to the capture's end, then the ISR
@@ -272,9 +271,8 @@ def host_chunks(stream: bytes, order: list[fwl.Frame], tau: float, join_at_s: fl
     sizes = np.array([o[3] for o in order], dtype=np.int64)
     starts = np.array([o[2] for o in order], dtype=np.float64)
     frame_off = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-    rep_start = np.repeat(starts, sizes)
     idx = np.arange(n, dtype=np.float64) - np.repeat(frame_off, sizes)
-    end_s = (rep_start + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
+    end_s = (np.repeat(starts, sizes) + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
     join = float(join_at_s)
     first = int(np.searchsorted(end_s, join, side="right")) if join > 0 else 0
     e = end_s[first:]
@@ -290,16 +288,13 @@ def host_chunks(stream: bytes, order: list[fwl.Frame], tau: float, join_at_s: fl
         if j_full < m and e[j_full] <= expiry:
             t_f, j = e[j_full], j_full
         else:
-            j = int(np.searchsorted(e, expiry, side="right")) - 1
-            t_f = expiry
+            t_f, j = expiry, int(np.searchsorted(e, expiry, side="right")) - 1
         flush_t.append(t_f)
         flush_end.append(j + 1)
         t_last, i = t_f, j + 1
-    flush_t = np.array(flush_t)
     # USB: the host controller picks the packet up at the next 1 ms frame; the OS hands it to the reader later
-    arrive = sof_phase + np.ceil((flush_t - sof_phase) / USB_FRAME_S) * USB_FRAME_S
-    arrive = arrive + rng.exponential(0.00015, len(arrive))
-    arrive = np.maximum.accumulate(arrive)
+    arrive = sof_phase + np.ceil((np.array(flush_t) - sof_phase) / USB_FRAME_S) * USB_FRAME_S
+    arrive = np.maximum.accumulate(arrive + rng.exponential(0.00015, len(arrive)))
     keep = arrive <= total_s
     ends = np.array(flush_end, dtype=np.int64)[keep]
     n_cap = int(ends[-1]) if len(ends) else 0
@@ -331,11 +326,9 @@ def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = 
     if kind == "raw":
         blob = result.data
     else:
-        bounds = list(result.chunk_offsets) + [len(result.data)]
-        blob = capture.encode_capture(
-            result.header,
-            ((result.data[bounds[i] : bounds[i + 1]], t) for i, t in enumerate(result.chunk_times_s)),
-        )
+        ends = [*result.chunk_offsets[1:], len(result.data)]
+        chunks = (result.data[a:b] for a, b in zip(result.chunk_offsets, ends))
+        blob = capture.encode_capture(result.header, zip(chunks, result.chunk_times_s))
     tmp = path.with_name(path.name + ".part")
     try:
         tmp.write_bytes(blob)
