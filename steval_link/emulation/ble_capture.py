@@ -1,16 +1,16 @@
 """A BLE capture from the real firmware under emulation (``steval emulate ELF --ble``, ``recordings/ble_demo.stv``).
 
-:class:`EmulatedBlueNrg`, the board's BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT
-handles (so each ``aci_gatt_update_char_value`` names its characteristic by UUID, as on the chip), an RSSI, and
-records every update, accepted at once (no radio congestion is modelled). :func:`record_ble` connects a central
-at ``connect_s`` and writes each notification of steval's characteristics as a capture ``B`` chunk, its host time
-the emulated delivery time (s since power-up): what ``steval live --ble`` would record, minus the radio's timing.
+:class:`EmulatedBlueNrg`, the BlueNRG-MS at the HCI level (``Board.hci_handler``), gives distinct GATT handles (each
+``aci_gatt_update_char_value`` names its characteristic by UUID), an RSSI, and records every update (no radio
+congestion). :func:`record_ble` connects a central at ``connect_s`` and writes each notification of steval's
+characteristics as a ``B`` chunk at its emulated time: what ``steval live --ble`` records, minus the radio's timing.
 """
 
 from __future__ import annotations
 
 import itertools
 import struct
+import uuid
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,10 +56,8 @@ class EmulatedBlueNrg:
             return struct.pack("<BH", 0, self._alloc(16))
         if (ogf, ocf) == GATT_ADD_CHAR and len(params) >= 5:
             handle = self._alloc(3)  # declaration, value, CCCD
-            uuid = params[3 : 3 + (16 if params[2] == UUID_TYPE_128 else 2)][::-1].hex()
-            self.char_id_of_handle[handle] = char_id_of_uuid(
-                f"{uuid[:8]}-{uuid[8:12]}-{uuid[12:16]}-{uuid[16:20]}-{uuid[20:]}"
-            )
+            raw = params[3 : 3 + (16 if params[2] == UUID_TYPE_128 else 2)][::-1]
+            self.char_id_of_handle[handle] = char_id_of_uuid(uuid.UUID(bytes=raw) if len(raw) == 16 else raw.hex())
             return struct.pack("<BH", 0, handle)
         if (ogf, ocf) == GATT_UPD_CHAR_VAL and len(params) >= 6:
             _serv, char, _off, length = struct.unpack_from("<HHBB", params)
@@ -71,13 +69,8 @@ class EmulatedBlueNrg:
             return struct.pack("<BHb", 0, 0, self.rssi_dbm)
         return b""
 
-    def attach(self, board) -> EmulatedBlueNrg:
-        board.hci_handler = self
-        return self
 
-
-#: the name the release 170120 firmware advertises, and the static random address it derives from this emulated
-#: board's unique ID (its banner prints "BoardMAC = c0:28:38:35:21:34")
+#: the name the 170120 firmware advertises, and the address it derives from this board's unique ID (its banner)
 EMULATED_NAME = "DRN1110"
 EMULATED_ADDRESS = "C0:28:38:35:21:34"
 

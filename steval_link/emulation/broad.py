@@ -1,14 +1,12 @@
-"""BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, conversion to firmware units, the STEVAL view of a trial,
-the ground-truth error metrics, and the truth each AHRS step of an emulated run saw (:class:`StepTruth`).
+"""BROAD trials (Laidig et al. 2021, CC BY 4.0): loading, firmware units, the STEVAL view of a trial, the error
+metrics, and the truth each AHRS step of an emulated run saw (:class:`StepTruth`).
 
-A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN rows where the
-markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz). The IMU axes match the firmware's (x right,
-y forward, z up).
+A trial ``.npz`` holds ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s, ``quat`` (N, 4) wxyz IMU → ENU (NaN where the
+markers were occluded), ``movement`` (N,) bool and ``fs`` (Hz); the IMU axes are the firmware's.
 
 Metric (BROAD paper): ``q_err = q_est ⊗ q_true⁻¹`` (earth frame); RMSE over ``movement`` samples ignoring NaN.
-Estimates are body → earth quaternions, like the firmware's (its gravity estimate is the third row of R(q), so its
-q maps body vectors to the earth frame, as BROAD's IMU → ENU). A constant heading offset leaves the inclination
-error unchanged, so 6-axis estimators are compared on inclination only.
+Estimates are body → earth quaternions, like the firmware's and BROAD's IMU → ENU. A constant heading offset
+leaves the inclination error unchanged, so 6-axis estimators are compared on inclination only.
 """
 
 from __future__ import annotations
@@ -86,8 +84,7 @@ def load_trial(path) -> BroadTrial:
 
 
 def trial_paths(items) -> list[Path]:
-    """Expand DATA arguments: directories become their ``*.npz`` (sorted, ground-truth sidecars ``*.truth.npz``
-    left out); files stay. Missing → UserError."""
+    """DATA arguments expanded: a directory's ``*.npz`` (sorted, no ``*.truth.npz`` sidecars); files stay."""
     out: list[Path] = []
     for item in items:
         p = Path(item)
@@ -142,8 +139,7 @@ class SteValView:
 
 
 def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.ndarray]:
-    """(q_wxyz (M, 4) float64, movement (M,) bool) of ``trial`` at trial times ``t_trial_s``: quaternions
-    interpolated, movement at the nearest sample; NaN / False outside the trial."""
+    """(q_wxyz (M, 4), movement (M,)) at trial times ``t_trial_s``: q interpolated; NaN / False outside the trial."""
     t = np.asarray(t_trial_s, dtype=np.float64).reshape(-1)
     t_end = float(trial.t_s[-1])
     inside = (t >= 0.0) & (t <= t_end)
@@ -157,10 +153,9 @@ def truth_at_trial_time(trial: BroadTrial, t_trial_s) -> tuple[np.ndarray, np.nd
 
 
 def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6dsl | None = None) -> SteValView:
-    """The trial as the STEVAL would see it at 161.5 Hz: resampled to the ISR tick (the gyro as a 416 Hz
-    sample-and-hold), quantised like the ST driver (``sensor``'s noise, seeded by ``seed``, added only when given),
-    then the firmware's ISR pipeline. Each step's ``t_s`` (where its truth is taken) is the middle of the 5 ticks it
-    averages; the gyro's hold and IIR delay (≈ 3.3 ms) stay part of every estimator's error."""
+    """The trial as the STEVAL sees it at 161.5 Hz: resampled to the ISR tick (the gyro held at 416 Hz), quantised
+    like the ST driver (with ``sensor``'s noise, seeded by ``seed``, when given), through the ISR pipeline. A step's
+    ``t_s`` is the middle of the 5 ticks it averages; the gyro's ≈ 3.3 ms delay stays in every estimator's error."""
     t = trial.t_s
     t_tick, acc = sm.resample_to_tick(t, trial.acc_mg)
     _, gyro = sm.resample_to_tick(t, trial.gyro_mdps, hold_hz=sm.GYRO_ODR_HZ)
@@ -173,8 +168,7 @@ def steval_view(trial: BroadTrial, *, seed: int | None = None, sensor: sm.Lsm6ds
     except ValueError as exc:
         raise UserError(f"trial {trial.name}: too short for the STEVAL pipeline ({exc})") from None
     t_step = t_tick[out.step_tick - (C.FIFO_ORDER // 2)]
-    q, mov = truth_at_trial_time(trial, t_step)
-    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, q, mov, C.AHRS_RATE_HZ)
+    return SteValView(out.acc_ahrs_mg, out.gyro_ahrs_mdps, t_step, *truth_at_trial_time(trial, t_step), C.AHRS_RATE_HZ)
 
 
 def own_rate_view(trial: BroadTrial) -> SteValView:
@@ -200,11 +194,9 @@ class TruthRows:
 class StepTruth:
     """The ground truth each AHRS step of an ``Emulation`` of a BROAD trial saw; attach before running.
 
-    At motion tick ``k`` the sensors hold the trial sample of trial time ``k · TICK_S − t_first`` (trial time 0 is the
-    first TIM9 tick; the trials start at rest, so the firmware's 2 s offset calibration takes a level pose). A step
-    averages the 5 ISR samples up to tick ``k_last`` (a probe at ``ahrs_fusion_ag`` records it): its truth is taken
-    at the window's centre, tick ``k_last − 2``, as :func:`steval_view` does. AHRS step ``i`` (from 0) is the
-    ``i``-th call of ``ahrs_fusion_ag``, the step counter of the patch's frames.
+    Trial time 0 is the first TIM9 tick (the trials start at rest, so the 2 s calibration sees a level pose). A step
+    averages the 5 ISR samples up to tick ``k_last`` (recorded at ``ahrs_fusion_ag``); its truth is at tick
+    ``k_last − 2``, as in :func:`steval_view`. Step ``i`` is the ``i``-th call of ``ahrs_fusion_ag`` (from 0).
     """
 
     def __init__(self, emu) -> None:
@@ -214,10 +206,7 @@ class StepTruth:
         self.trial: BroadTrial = emu.motion.trial
         self._last_tick: list[int] = []
         self._taken = 0
-        emu.step_start_observers.append(self._on_step_start)
-
-    def _on_step_start(self, board) -> None:
-        self._last_tick.append(self.emu.tick_index())
+        emu.step_start_observers.append(lambda board: self._last_tick.append(emu.tick_index()))
 
     @property
     def last_ticks(self) -> np.ndarray:
@@ -230,12 +219,10 @@ class StepTruth:
         mid = ticks - C.FIFO_ORDER // 2
         step = np.arange(start, start + ticks.shape[0], dtype=np.int64)
         if ticks.shape[0] == 0:
-            empty = np.zeros(0)
-            return TruthRows(step, empty, empty, np.zeros((0, 4)), np.zeros(0, dtype=bool))
+            return TruthRows(step, np.zeros(0), np.zeros(0), *truth_at_trial_time(self.trial, np.zeros(0)))
         t_trial = np.asarray(self.emu.trial_time_s(mid), dtype=np.float64)
         t_emu = np.asarray(self.emu.tick_time_s(mid), dtype=np.float64)
-        q, mov = truth_at_trial_time(self.trial, t_trial)
-        return TruthRows(step, t_emu, t_trial, q, mov)
+        return TruthRows(step, t_emu, t_trial, *truth_at_trial_time(self.trial, t_trial))
 
     def take(self) -> TruthRows:
         """The truth of the steps recorded since the last call (for a capture's truth chunks as it grows)."""

@@ -1,12 +1,8 @@
-"""BROAD trials on demand: download from the dataset's public repository into a user cache, check, convert to
-the ``.npz`` the tools read (:func:`steval_link.emulation.broad.load_trial`).
+"""BROAD trials on demand: download into a user cache, check, convert to the ``.npz`` that ``broad.load_trial`` reads.
 
-- Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (CC BY 4.0); ``STEVAL_BROAD_URL``
-  replaces the base URL (a mirror, or the tests' loopback server).
-- Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), the one published fingerprint of every file.
-- Download with pooch; the check and the conversion happen in a private folder of the cache, and only a complete
-  ``.npz`` is renamed into place, so nothing half-written is ever left.
-
+Source: github.com/dlaidig/broad at a pinned commit, ``data_hdf5/NAME.hdf5`` (CC BY 4.0); ``STEVAL_BROAD_URL``
+replaces the base URL. Hashes: each file's git blob id at that commit (:data:`BROAD_FILES`), its one published
+fingerprint. pooch downloads into a private folder of the cache; only a complete ``.npz`` is renamed into place.
 The conversion keeps the values as float32: ``acc`` = ``imu_acc`` (m/s²), ``gyr`` = ``imu_gyr`` (rad/s), ``quat`` =
 ``opt_quat`` (wxyz, IMU → ENU, NaN where occluded), ``movement`` (bool), ``fs`` = ``sampling_rate`` (Hz).
 """
@@ -15,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,8 +21,7 @@ from steval_link.errors import UserError, printable
 
 BROAD_COMMIT = "7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad"  #: the dataset repository's commit the hashes belong to
 _DEFAULT_URL = f"https://raw.githubusercontent.com/dlaidig/broad/{BROAD_COMMIT}/data_hdf5"
-#: the trials `steval evaluate`'s table and the course project use
-DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")
+DEFAULT_TRIALS = ("02", "07", "10", "15", "24", "27")  #: the trials `steval evaluate`'s table and the course use
 ATTRIBUTION = (
     'BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD - A Benchmark for Robust Inertial Orientation '
     'Estimation", Data 6(7), 2021, doi:10.3390/data6070072; licensed CC BY 4.0 '
@@ -104,8 +98,7 @@ def cached_trials(directory: Path) -> list[Path]:
 
 
 def resolve_trials(selectors: list[str]) -> list[str]:
-    """Trial names for ``selectors``: a number (``2``, ``02``), a full or partial name (``fast_rotation``), or
-    ``all``; none gives :data:`DEFAULT_TRIALS`. An unknown one raises UserError naming the trials."""
+    """Trial names for ``selectors``: a number (``2``, ``02``), part of a name, or ``all``; none: DEFAULT_TRIALS."""
     names = list(BROAD_FILES)
     chosen: list[str] = []
     for sel in selectors or list(DEFAULT_TRIALS):
@@ -129,8 +122,7 @@ def git_blob_sha1(data: bytes) -> str:
 
 
 def convert_hdf5(src: Path, dst: Path) -> None:
-    """Write BROAD's HDF5 trial ``src`` as the tools' ``.npz`` ``dst``; UserError when a dataset is missing or
-    has the wrong shape."""
+    """Write BROAD's HDF5 trial ``src`` as the tools' ``.npz`` ``dst``; UserError for a missing or misshapen dataset."""
     import h5py
 
     try:
@@ -153,19 +145,18 @@ _H5_ARRAYS = {"acc": "imu_acc", "gyr": "imu_gyr", "quat": "opt_quat"}
 
 
 def fetch_trial(name: str, directory: Path) -> FetchedTrial:
-    """``directory/NAME.npz``, downloaded, checked against its recorded hash and converted unless it is there; any
-    failure raises UserError and leaves nothing of this trial in ``directory``."""
+    """``directory/NAME.npz``, downloaded, checked and converted unless there; a failure leaves nothing of it."""
     expected = BROAD_FILES[name]
     out = directory / f"{name}.npz"
     if out.is_file():
         return FetchedTrial(name, out, False, 0)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=".partial-", dir=directory))
+        partial = tempfile.TemporaryDirectory(prefix=".partial-", dir=directory, ignore_cleanup_errors=True)
     except OSError as exc:
         raise UserError(f"cannot write the data folder {directory} ({exc.strerror or exc})") from None
-    try:
-        hdf5 = _download(f"{os.environ.get('STEVAL_BROAD_URL', _DEFAULT_URL).rstrip('/')}/{name}.hdf5", work)
+    with partial as work:
+        hdf5 = _download(f"{os.environ.get('STEVAL_BROAD_URL', _DEFAULT_URL).rstrip('/')}/{name}.hdf5", Path(work))
         data = hdf5.read_bytes()
         got = git_blob_sha1(data)
         if got != expected:
@@ -173,12 +164,10 @@ def fetch_trial(name: str, directory: Path) -> FetchedTrial:
                 f"BROAD {name}: the download ({len(data)} bytes) does not match its recorded hash "
                 f"(git blob {got[:12]}, expected {expected[:12]}), so it was not kept; try again later"
             )
-        npz = work / f"{name}.npz"
+        npz = Path(work) / f"{name}.npz"
         convert_hdf5(hdf5, npz)
         os.replace(npz, out)
         return FetchedTrial(name, out, True, len(data))
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def _download(url: str, folder: Path) -> Path:

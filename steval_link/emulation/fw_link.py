@@ -1,9 +1,8 @@
-"""The firmware patch's link (``firmware_patch/src/stv_link.c`` and ``stv_txq.c``) emulated step by step, for
-``steval synth``: the AHRS step timing, an attitude frame per step (``$ATT`` lines every 16th step in text mode), a
-status frame after every 162nd step (filter-state snapshot, DWT cycle statistics), the boot log as text frames, and
-the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted in ``tx_dropped``;
-attitude and text frames leave room for a status frame). Then the frames as bytes, by the Python encoder or the
-firmware's own C encoder. Timings are the real firmware's under ``steval emulate`` where measurable, else models.
+"""The firmware patch's link (``stv_link.c``, ``stv_txq.c``) step by step for ``steval synth``: AHRS step timing, an
+attitude frame per step (text mode: a ``$ATT`` line every 16th), a status frame every 162nd step, the boot log as
+text frames, and the 2048-byte TX queue drained by USART1 (a frame that does not fit is dropped and counted;
+attitude and text frames leave room for a status frame). Then the bytes, by the Python or the firmware's C encoder.
+Timings are the real firmware's under ``steval emulate`` where measurable, else models.
 """
 
 from __future__ import annotations
@@ -39,18 +38,14 @@ TIM9_START_CYCLES = 84_007_128 - C.TICK_CYCLES
 _RAD_TO_MDEG_F32 = np.float32(57295.78)
 
 
-#: one frame in transmit order: (kind "att" | "status" | "text" | "raw", the attitude row or the payload, the cycle
-#: time its first byte starts, its size in bytes)
+#: a frame in transmit order: (kind att/status/text/raw, attitude row or payload, first byte's cycle time, bytes)
 Frame = tuple[str, object, float, int]
 
 
 def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
-    """The 170120 firmware's PRINTF lines from power-up (empty lines dropped by the link), with the emulated cycle
-    counts at which they are written. The BlueNRG version and the random BLE address come from ``rng``."""
-    uid = rng.integers(0, 256, 4)
-    mac = [0xC0, 0x8C, int(uid[0]), int(uid[1]), int(uid[2]), int(uid[3])]
-    # ms after the link starts, as the real firmware writes them under emulation (the sensor lines come after ST's
-    # HAL_Delay(1000); the BlueNRG's own reply times are not modelled there, so the BLE lines' spacing is a guess)
+    """The 170120 firmware's non-empty PRINTF lines from power-up with their cycle counts; BLE address from rng."""
+    mac = [0xC0, 0x8C, *(int(v) for v in rng.integers(0, 256, 4))]
+    # ms after the link starts, as under emulation (after ST's HAL_Delay(1000)); the BLE lines' spacing is a guess
     ms = [
         (0.02, "STEVAL-FCU001V1 FW rev.1.0 - Sep 2017"),
         (999.95, "LSM6DSL MEMS Accelerometer initialized and enabled"),
@@ -74,8 +69,7 @@ def boot_lines(rng: np.random.Generator) -> list[tuple[int, str]]:
         (1025.0, "Console Service W2ST added successfully"),
         (1026.0, "Config  Service W2ST added successfully"),
     ]
-    jitter = rng.uniform(0.0, 0.03, len(ms))
-    return [(int((t + j) * C.CPU_HZ / 1000), text) for (t, text), j in zip(ms, jitter)]
+    return [(int((t + j) * C.CPU_HZ / 1000), text) for (t, text), j in zip(ms, rng.uniform(0.0, 0.03, len(ms)))]
 
 
 class TxQueue:
@@ -84,13 +78,10 @@ class TxQueue:
     def __init__(self, baud: int) -> None:
         self.tau = 10.0 * C.CPU_HZ / baud  # cycles per byte
         self.busy_until = 0.0  # cycle time the last queued byte has been shifted out
-        self.dropped = 0
-        self.peak = 0
+        self.dropped = self.peak = 0
 
     def used(self, t: float) -> int:
         """Bytes still in the queue at ``t`` (one byte sits in the shift register, one in DR)."""
-        if self.busy_until <= t:
-            return 0
         return max(0, math.ceil((self.busy_until - t) / self.tau - 1e-9) - 2)
 
     def push(self, t: float, n: int, keep_free: int) -> float | None:
@@ -104,18 +95,9 @@ class TxQueue:
         self.peak = max(self.peak, used + n)
         return start
 
-    def take_peak(self, t: float) -> int:
-        p, self.peak = self.peak, self.used(t)
-        return p
-
-    def busy_overlap(self, t0: float, t1: float) -> float:
-        """Bytes the UART finishes between t0 and t1 (for the TXE interrupts landing in an AHRS step)."""
-        return max(0.0, min(self.busy_until, t1) - t0) / self.tau
-
 
 def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndarray:
-    """(n,) bool: attitude frames the queue refuses for ``--drop-rate``: bursts (mean 3 frames) separated by
-    geometric gaps, so the long-run fraction is ``rate``."""
+    """(n,) bool: attitude frames refused on purpose: bursts (mean 3) at geometric gaps, ``rate`` in the long run."""
     out = np.zeros(n_steps, dtype=bool)
     if rate <= 0 or n_steps == 0:
         return out
@@ -130,9 +112,8 @@ def forced_drops(n_steps: int, rate: float, rng: np.random.Generator) -> np.ndar
 
 
 def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """When each AHRS step begins, in CPU cycles since the link started, and the draws that shape its DWT count:
-    ``(begin, cycle noise, TXE-interrupt draw)``. A step begins after its TIM9 tick's ISR (SPI sensor reads, IIR,
-    PID: ≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
+    """``(begin, cycle noise, TXE-interrupt draw)`` of each AHRS step, begin in CPU cycles since the link started:
+    after its TIM9 tick's ISR (≈ 180 µs) and the main loop's latency (BLE traffic now and then)."""
     n_steps = len(step_tick)
     isr_cycles = 15_100 + rng.integers(-300, 300, n_steps)
     loop_latency = rng.integers(0, 700, n_steps) + np.where(
@@ -140,16 +121,14 @@ def step_timing(step_tick: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
     )
     begin = TIM9_START_CYCLES + (np.asarray(step_tick, np.int64) + 1) * C.TICK_CYCLES + isr_cycles + loop_latency
     cyc_noise = np.rint(rng.normal(0.0, 14.0, n_steps)).astype(np.int64) + rng.integers(0, 24, n_steps)
-    txe_u = rng.random(n_steps)
-    return begin, cyc_noise, txe_u
+    return begin, cyc_noise, rng.random(n_steps)
 
 
 @dataclass
 class LinkEmulation:
-    """``stv_link.c`` of one firmware run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`):
-    ``att`` holds every step's attitude payload, ``thx``/``thy`` its angles (rad, for ``$ATT`` lines), ``snapshots``
-    the filter state after each status step, ``drop`` the frames refused on purpose. It keeps the transmit
-    ``order``, which steps were ``sent`` and the ``status`` records."""
+    """``stv_link.c`` of one run, fed the boot lines (:meth:`text`) and every AHRS step (:meth:`step`): ``att`` the
+    payloads, ``thx``/``thy`` rad, ``snapshots`` the filter after each status step, ``drop`` frames refused on purpose.
+    It keeps the transmit ``order``, which steps were ``sent`` and the ``status`` records."""
 
     att: np.ndarray
     thx: np.ndarray
@@ -187,10 +166,9 @@ class LinkEmulation:
             self._push("text", piece, cyc, P.HEADER_SIZE + len(piece) + P.CRC_SIZE, P.STATUS_FRAME_SIZE)
 
     def step(self, k: int, c0: float, cyc_noise: int, txe_u: float) -> None:
-        """AHRS step ``k`` beginning at cycle ``c0``: its DWT count (the filter plus the TXE interrupts landing in
-        it), its attitude frame or ``$ATT`` line, and the status frame after every 162nd step."""
+        """AHRS step ``k`` from cycle ``c0``: its DWT count (with the TXE interrupts in it), its frame, status frame."""
         base = AHRS_CYCLES + int(cyc_noise)
-        irqs = self.txq.busy_overlap(c0, c0 + base)
+        irqs = max(0.0, min(self.txq.busy_until, c0 + base) - c0) / self.txq.tau  # bytes the UART finishes in it
         n_irq = int(irqs) + (1 if txe_u < irqs - int(irqs) else 0)
         cyc = base + n_irq * TXE_IRQ_CYCLES
         c1 = c0 + cyc
@@ -227,20 +205,13 @@ class LinkEmulation:
         snap = self.snapshots[len(self.status)]
         s = self.settings
         rec = np.zeros((), dtype=P.STATUS_DTYPE)
-        rec["step"] = k
-        rec["t_us"] = self.att[k]["t_us"]
-        rec["q_wxyz"] = snap.q_wxyz
-        rec["int_xyz"] = snap.int_xyz
+        rec["step"], rec["t_us"], rec["q_wxyz"], rec["int_xyz"] = k, self.att[k]["t_us"], snap.q_wxyz, snap.int_xyz
         rec["kp_ground"], rec["kp_flight"], rec["ki"], rec["dt_s"] = s.kp_ground, s.kp_flight, self.ki_f32, s.dt_s
         cyc = self.cycles
         rec["cyc_min"], rec["cyc_max"], rec["cyc_n"] = min(cyc), max(cyc), min(len(cyc), 0xFFFF)
-        rec["cyc_mean"] = sum(cyc) // len(cyc)
-        rec["cpu_hz"] = C.CPU_HZ
-        rec["tx_dropped"] = self.txq.dropped
-        rec["baud"] = self.baud
-        rec["min_thr"] = s.min_thr
-        rec["flags"] = self.flags
-        rec["queue_peak"] = min(self.txq.take_peak(c1), 0xFFFF)
+        rec["cyc_mean"], rec["cpu_hz"], rec["tx_dropped"] = sum(cyc) // len(cyc), C.CPU_HZ, self.txq.dropped
+        rec["baud"], rec["min_thr"], rec["flags"] = self.baud, s.min_thr, self.flags
+        rec["queue_peak"], self.txq.peak = min(self.txq.peak, 0xFFFF), self.txq.used(c1)  # stv_txq_take_peak
         rec["fw_version"] = FW_VERSION
         self.status.append(rec)
         self.cycles = []

@@ -16,11 +16,9 @@ from steval_link.emulation.sensor_model import Lsm6dsl
 from steval_link.estimators import registry
 from steval_link.estimators.st_mahony import StMahony, handout_yaw
 
-#: Lab 5 baseline inputs
-BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)
+BASELINE_GYRO_MDPS = (1000.0, 2000.0, 4000.0)  #: Lab 5 baseline inputs
 BASELINE_ACC_MG = (0.0, 0.0, 0.0)
-#: LSM6DSL typical noise (Lab 5 appendix B), standard deviations
-TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps
+TYPICAL_GYRO_NOISE_MDPS = Lsm6dsl.gyro_noise_mdps  #: LSM6DSL typical noise (Lab 5 appendix B), standard deviations
 TYPICAL_ACC_NOISE_MG = Lsm6dsl.acc_noise_mg
 
 
@@ -44,9 +42,7 @@ class SimulationResult:
     eaz_rad: np.ndarray  #: (N,) thz, yaw about z
     valid: np.ndarray  #: (N,) bool, the estimator's validity flag
     settings: dict = field(default_factory=dict)
-    #: the period the estimator integrates with, s (the simulation's when it takes it, else its own); None when it
-    #: does not integrate (accel) or does not say
-    estimator_dt_s: float | None = None
+    estimator_dt_s: float | None = None  #: the period the estimator integrates with, s (None: accel, or unsaid)
 
     @property
     def iterations(self) -> int:
@@ -84,11 +80,9 @@ def run_simulation(
     estimator_options: dict | None = None,
     dt_s: float | None = None,
 ) -> SimulationResult:
-    """Run the Lab 5 simulator: ``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus
-    white Gaussian noise of the given standard deviations, from power-up. ``seed`` None draws one (recorded in the
-    result). ``dt_s`` (None: the firmware's 6.25 ms) is every estimator's period (st-mahony's ``dt_s``, the others'
-    ``rate_hz`` when they take it) unless its options set their own. ValueError for bad inputs, an unknown
-    estimator or options it does not take."""
+    """``iterations`` steps of constant inputs (gyro mdps, acc mg, throttle ``gTHR``) plus white Gaussian noise of
+    these standard deviations, from power-up. ``seed`` None draws one (recorded). ``dt_s`` (None: 6.25 ms) is the
+    estimator's period unless its options set their own. ValueError for bad inputs, estimators or options."""
     gyro, acc = _vector3(gyro_mdps, "gyro"), _vector3(acc_mg, "acc")
     iterations, throttle, dt = _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s)
     gyro, acc = np.tile(gyro, (iterations, 1)), np.tile(acc, (iterations, 1))
@@ -153,8 +147,7 @@ def _check(iterations, gyro_noise_mdps, acc_noise_mg, throttle, dt_s) -> tuple[i
 
 
 def _timing(estimator: str, dt_s: float) -> dict:
-    """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s`` for the firmware's filter, ``rate_hz``
-    for an estimator that takes it (docs/ESTIMATORS.md), none for one that takes neither (accel)."""
+    """The option that makes ``estimator`` integrate at ``dt_s``: ``dt_s``, ``rate_hz``, or none (accel)."""
     sel = registry.resolve(estimator)
     if sel.reference.kind == "builtin" and sel.reference.source == "st-mahony":
         return {"dt_s": dt_s}
@@ -164,8 +157,7 @@ def _timing(estimator: str, dt_s: float) -> dict:
 
 
 def _own_dt(est, options: dict) -> float | None:
-    """The period an estimator integrates with: from its ``rate_hz`` option, else its own ``dt``/``dt_s`` attribute;
-    None when it says none (accel does not integrate)."""
+    """The period an estimator integrates with (its ``rate_hz`` option, else its ``dt``/``dt_s``), else None."""
     if "rate_hz" in options:
         return 1.0 / float(options["rate_hz"])
     inner = getattr(est, "inner", est)  # a user's estimator behind the guard

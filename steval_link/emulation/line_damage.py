@@ -27,14 +27,12 @@ def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
     """``data`` with one damage event every 200 .. 5000 bytes (uniform): a single bit flip (60 %), a cut of 1 .. 16
     bytes (20 %) or a burst of 1 .. 64 random bytes inserted (20 %)."""
     n = len(data)
-    gaps = rng.integers(200, 5000 + 1, size=n // 200 + 2)
-    pos = np.cumsum(gaps)
+    pos = np.cumsum(rng.integers(200, 5000 + 1, size=n // 200 + 2))
     pos = pos[pos < n]
-    kinds = rng.random(len(pos))
     out = bytearray()
     counts = DamageCounts()
     last = 0
-    for p, k in zip(pos.tolist(), kinds.tolist()):
+    for p, k in zip(pos.tolist(), rng.random(len(pos)).tolist()):
         if p < last:
             continue
         out += data[last:p]
@@ -54,10 +52,9 @@ def damage(data: bytes, rng: np.random.Generator) -> tuple[bytes, DamageCounts]:
 
 
 def long_stream(att: np.ndarray, sta: np.ndarray, n_frames: int, start_rep: int = 0) -> tuple[bytes, list[bytes]]:
-    """About ``n_frames`` v2 attitude frames (plus the status frames among them) made of the payload records ``att``
-    (ATTITUDE_DTYPE, consecutive steps) and ``sta`` (STATUS_DTYPE of the same steps), repeated with ``seq``, ``step``
-    and ``t_us`` continued; repetition numbers start at ``start_rep`` (so consecutive blocks continue each other).
-    Returns the bytes and the list of the frames' payloads (what a perfect decoder hands out)."""
+    """About ``n_frames`` v2 attitude frames (and the status frames among them) of the records ``att`` and ``sta``
+    (consecutive steps), repeated with ``seq``, ``step`` and ``t_us`` continued from repetition ``start_rep``.
+    Returns the bytes and the frames' payloads (what a perfect decoder hands out)."""
     n = len(att)
     out = bytearray()
     payloads: list[bytes] = []
@@ -106,8 +103,7 @@ class FuzzScore:
 
 
 def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
-    """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records (ATTITUDE_DTYPE,
-    STATUS_DTYPE): what the firmware sent, field for field."""
+    """The binary attitude and status rows of a decoded ``Telemetry`` as wire payload records, field for field."""
     out = []
     for rows, dtype in ((tel.attitude, P.ATTITUDE_DTYPE), (tel.status, P.STATUS_DTYPE)):
         rec = np.zeros(len(rows), dtype)
@@ -118,8 +114,7 @@ def payload_records(tel) -> tuple[np.ndarray, np.ndarray]:
 
 
 def score(sent_payloads: list[bytes], tel) -> tuple[FuzzScore, list[bytes]]:
-    """Compare the attitude and status frames of a decoded ``Telemetry`` with the payloads sent. Returns the score
-    and the fake payloads (for a report)."""
+    """The score of a decoded ``Telemetry``'s attitude and status frames against the payloads sent, and the fakes."""
     sent = set(sent_payloads)
     got = [r.tobytes() for rows in payload_records(tel) for r in rows]
     fakes = [g for g in got if g not in sent]

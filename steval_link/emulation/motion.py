@@ -1,17 +1,12 @@
-"""Motion profiles for emulated captures: what the drone's body does at every TIM9 tick (807.7 Hz).
+"""Motion profiles: what the drone's body does at every TIM9 tick (807.7 Hz), in the firmware's axes (x right,
+y forward, z up; at rest the specific force is (0, 0, +1000) mg). Angles follow ``QuaternionToEuler``: ``thx``
+about x (pitch), ``thy`` about y (roll); ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``. :func:`render` renders a scenario's
+kinematics, :func:`broad_profile` a BROAD trial (real motion, real IMU signals).
 
-A profile (:class:`MotionProfile`) holds the true motion and the remote's inputs per ISR tick, in the firmware's
-axes (x right, y forward, z up; level at rest: specific force (0, 0, +1000) mg). Angles follow
-``QuaternionToEuler``: ``thx`` about x (pitch), ``thy`` about y (roll); ``q = Rz(yaw) ⊗ Ry(thy) ⊗ Rx(thx)``.
-:func:`render` renders a scenario's kinematics (:mod:`steval_link.emulation.scenarios`); :func:`broad_profile`
-turns a BROAD trial (real motion, real IMU signals) into a profile.
-
-Physics in short: specific force ``f = Rᵀ(a + g·ẑ)`` with ``a`` the IMU's acceleration (translation plus the
-lever-arm motion of a rotation about a pivot that is not the IMU, e.g. a wrist or a turntable axis); in flight a
-quadrotor's specific force is its thrust, along body z (``f = (0, 0, (g + a_z)/R₃₃)``), so the accelerometer
-does not see the tilt: the case the firmware's small in-flight gain ``kp = 0.4`` is made for. Motor vibration
-(4 motors at slightly different speeds, harmonics 1 and 2, amplitude ∝ speed²) is added to both sensors whenever
-``gTHR ≥ MIN_THR``, with the amplitudes of the sensor *output* (after the LSM6DSL's own low-pass filters).
+Physics: specific force ``f = Rᵀ(a + g·ẑ)``, ``a`` the IMU's acceleration (translation plus the lever arm of a
+rotation about a pivot, e.g. a wrist); in flight it is the thrust along body z (``f = (0, 0, (g + a_z)/R₃₃)``), so
+the accelerometer does not see the tilt: what the in-flight gain ``kp = 0.4`` is for. Motor vibration (4 motors,
+harmonics 1 and 2, amplitude ∝ speed²) is added to both sensors while ``gTHR ≥ MIN_THR``, at the sensor *output*.
 """
 
 from __future__ import annotations
@@ -51,20 +46,6 @@ _H_RATE = 1e-4
 _H_ACC = 2e-3
 
 
-def _body_rate_radps(kin: Kinematics, t) -> np.ndarray:
-    """ω in body axes: 2·vec(q* ⊗ q̇), q̇ by a central difference of the analytic orientation."""
-    dq = (kin.q(t + _H_RATE) - kin.q(t - _H_RATE)) / (2 * _H_RATE)
-    return 2.0 * quat_multiply(quat_conjugate(kin.q(t)), dq)[:, 1:]
-
-
-def _lever_acc_mps2(kin: Kinematics, t) -> np.ndarray:
-    """Earth-frame acceleration of the IMU from rotating about a pivot ``lever_m`` away (second difference)."""
-    if not np.any(kin.lever_m):
-        return np.zeros((len(t), 3))
-    p = [(rotmat(kin.q(t + d)) @ kin.lever_m) for d in (-_H_ACC, 0.0, _H_ACC)]
-    return (p[0] - 2 * p[1] + p[2]) / (_H_ACC * _H_ACC)
-
-
 def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
     """Motor vibration (acc mg at ``t``, gyro mdps at ``t_eval``): 4 motors, harmonics 1 and 2, ∝ speed²."""
     on = thr_tick >= C.MIN_THR
@@ -72,8 +53,7 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
         return None
     thr = np.where(on, thr_tick, 0).astype(np.float64)
     f_m = np.where(on, 90.0 + 0.6 * thr, 0.0)  # motor rotation rate, Hz (≈ 390 Hz at the hover throttle)
-    dt = np.diff(t, prepend=t[0])
-    phase = 2 * np.pi * np.cumsum(f_m * dt)
+    phase = 2 * np.pi * np.cumsum(f_m * np.diff(t, prepend=t[0]))
     scale = np.where(on, (thr / 500.0) ** 2, 0.0)
     acc, gyro = np.zeros((len(t), 3)), np.zeros((len(t_eval), 3))
     phase_e, scale_e = np.interp(t_eval, t, phase), np.interp(t_eval, t, scale)
@@ -91,15 +71,17 @@ def _vibration(t, thr_tick, rng: np.random.Generator, t_eval):
 def render(
     name: str, kin: Kinematics, t: np.ndarray, rng: np.random.Generator, throttle: Callable | None = None
 ) -> MotionProfile:
-    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` (a function of time, see
-    :func:`parse_throttle`) overrides the scenario's."""
+    """Scenario ``name``'s kinematics at tick times ``t`` (s since power-up); ``throttle`` overrides its own."""
     t = np.asarray(t, dtype=np.float64)
     q = kin.q(t)
     # gyro: the output register holds the rate sampled at the 416 Hz ODR
     t_hold = sm.gyro_hold_times_s(t, t[0])
-    gyro = _body_rate_radps(kin, t_hold) * RAD_TO_MDPS
-    # specific force
-    a = _lever_acc_mps2(kin, t) * MG_PER_MPS2
+    dq = (kin.q(t_hold + _H_RATE) - kin.q(t_hold - _H_RATE)) / (2 * _H_RATE)  # q̇ by a central difference
+    gyro = 2.0 * quat_multiply(quat_conjugate(kin.q(t_hold)), dq)[:, 1:] * RAD_TO_MDPS  # ω = 2·vec(q* ⊗ q̇), body
+    a = np.zeros((len(t), 3))  # earth-frame acceleration of the IMU rotating about a pivot lever_m away, mg
+    if np.any(kin.lever_m):
+        p = [(rotmat(kin.q(t + d)) @ kin.lever_m) for d in (-_H_ACC, 0.0, _H_ACC)]
+        a = (p[0] - 2 * p[1] + p[2]) / (_H_ACC * _H_ACC) * MG_PER_MPS2
     if kin.lever_weight is not None:
         a *= kin.lever_weight(t)[:, None]
     if kin.lin_acc_mg is not None:
@@ -108,17 +90,15 @@ def render(
     g_plus_a = a + np.array([0.0, 0.0, 1000.0])
     f = np.einsum("nji,nj->ni", rot, g_plus_a)  # Rᵀ (a + g ẑ)
     if kin.airborne is not None:
-        w = kin.airborne(t)[:, None]
-        fz = g_plus_a[:, 2] / np.maximum(rot[:, 2, 2], 0.2)
-        thrust = np.stack([np.zeros_like(fz), np.zeros_like(fz), fz], axis=-1)
-        f = (1 - w) * f + w * thrust
+        w = kin.airborne(t)
+        f = (1 - w[:, None]) * f
+        f[:, 2] += w * (g_plus_a[:, 2] / np.maximum(rot[:, 2, 2], 0.2))  # thrust along body z
     # throttle: the RC receiver updates gTHR at ~50 Hz, integer units with ±1 jitter while the stick is up
     thr_fn = throttle if throttle is not None else kin.thr
     t_rc = np.floor(t * RC_RATE_HZ) / RC_RATE_HZ
     uniq, inv = np.unique(t_rc, return_inverse=True)
     thr_val = np.asarray(thr_fn(uniq), dtype=np.float64)
-    jitter = np.where(thr_val > 0, rng.integers(-1, 2, len(uniq)), 0)
-    thr_rc = np.clip(np.rint(thr_val) + jitter, -32768, 32767)
+    thr_rc = np.clip(np.rint(thr_val) + np.where(thr_val > 0, rng.integers(-1, 2, len(uniq)), 0), -32768, 32767)
     thr_rc = np.where(thr_val > 0, np.maximum(thr_rc, 0), thr_rc)
     thr_tick = thr_rc[inv].astype(np.int16)
     vib = _vibration(t, thr_tick, rng, t_hold)
@@ -130,8 +110,7 @@ def render(
 
 
 def parse_throttle(spec: str) -> Callable:
-    """``--throttle``: ``N`` (constant) or ``t:v,t:v,...`` (s since power-up : gTHR, linear in between, held
-    outside). Raises :class:`UserError` for anything else."""
+    """``N`` (constant) or ``t:v,t:v,...`` (s since power-up : gTHR, linear in between, held outside) as a function."""
     text = spec.strip()
     try:
         pairs = [item.split(":") for item in text.split(",")] if ":" in text else [("0", text)]
@@ -150,9 +129,8 @@ def parse_throttle(spec: str) -> Callable:
 
 
 def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callable | None = None) -> MotionProfile:
-    """A BROAD trial at tick times ``t_s``, trial time 0 at the first TIM9 tick ``first_tick_s``: acc linearly
-    resampled, the gyro a 416 Hz sample-and-hold of the trial's measurements (``measured``). Throttle 0 (hand-held)
-    unless ``throttle`` is given."""
+    """A BROAD trial at tick times ``t_s``, trial time 0 at ``first_tick_s``: acc interpolated, the gyro a 416 Hz
+    sample-and-hold of its measurements. Throttle 0 (hand-held) unless ``throttle`` is given."""
     t_rel = np.asarray(t_s, dtype=np.float64) - first_tick_s
     t_trial = trial.t_s
     if t_rel[-1] > t_trial[-1] + 1e-9:
@@ -176,8 +154,7 @@ def broad_profile(trial, t_s: np.ndarray, first_tick_s: float, throttle: Callabl
 
 @dataclass(frozen=True)
 class Vibration:
-    """A pure sinusoid added to one sensor axis (``steval synth --vibration``), to check spectra against a known
-    input: ``amplitude · sin(2π · freq_hz · t)`` with t in s since power-up."""
+    """A known input for spectra: ``amplitude · sin(2π · freq_hz · t)`` (t: s since power-up) on one sensor axis."""
 
     sensor: str  #: "acc" (mg, at each ISR tick) or "gyro" (mdps, as its 416 Hz output register holds it)
     axis: int  #: 0, 1, 2 for x, y, z (the firmware's body axes)
@@ -190,8 +167,7 @@ class Vibration:
 
 
 def parse_vibration(spec: str) -> Vibration:
-    """``--vibration``: ``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg).
-    Raises :class:`UserError` for anything else."""
+    """``SENSOR-AXIS:HZ:AMPLITUDE``, e.g. ``gyro-x:47:2000`` (mdps) or ``acc-z:130:200`` (mg)."""
     bad = ParamError(
         f"{{vibration}} takes SENSOR-AXIS:HZ:AMPLITUDE (SENSOR acc or gyro, AXIS x, y or z, amplitude in mg or "
         f"mdps), e.g. gyro-x:47:2000; got {spec!r}",
@@ -211,8 +187,7 @@ def parse_vibration(spec: str) -> Vibration:
 
 
 def add_vibrations(profile: MotionProfile, vibrations: list[Vibration]) -> MotionProfile:
-    """``profile`` with the sinusoids ``vibrations`` (:class:`Vibration`) added: acc at each tick time, gyro at the
-    time its 416 Hz output register was last refreshed (as the motion's own gyro values)."""
+    """``profile`` plus ``vibrations``: acc at each tick, gyro when its 416 Hz output register was last refreshed."""
     if not vibrations:
         return profile
     t = np.asarray(profile.t_s, dtype=np.float64)

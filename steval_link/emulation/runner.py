@@ -7,27 +7,27 @@
         ...
     print(emu.report().lines())
 
-Motion: a built-in scenario (rendered in windows of :data:`WINDOW_S`, so memory stays bounded whatever the
-duration) or a BROAD trial (its real IMU signals, from the first TIM9 tick on), through an LSM6DSL with this seed's
-offsets and white noise (as ``steval synth``), into the sensor's ADC registers. Throttle: the default build takes
-``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``; the emulated remote writes ``joydata`` at each
-TIM9 tick and sets ``connected`` at its first non-zero throttle or arming, or from power-up in a scenario with
-sticks (the firmware then also sends its BLE notifications through ``hci_send_req``). Connected, it sends every
-stick as ST's app does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred;
-``gRUD = (j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``) and ``[7]`` bit 2, the arming switch
-(``rc_enable_motor``): with ``flight`` and ``preflight`` the real firmware computes its targets ``euler_rc``, both
-PID loops and the motor PWM. Builds with ``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
+Motion: a built-in scenario (rendered :data:`WINDOW_S` at a time, so memory stays bounded) or a BROAD trial (from
+the first TIM9 tick on), through an LSM6DSL with this seed's offsets and noise (as ``steval synth``) into its ADC
+registers. Throttle: the default build takes ``gTHR = joydata[3] * 13`` from the BLE remote while ``connected``.
+The emulated remote writes ``joydata`` each TIM9 tick and connects at its first throttle or arming (a scenario with
+sticks: at power-up; the firmware then also sends BLE notifications). Connected, it sends every stick as ST's app
+does: ``joydata[2]`` rudder, ``[3]`` throttle, ``[4]`` aileron, ``[5]`` elevator (128 = centred; ``gRUD =
+(j2-128)·(-13)``, ``gAIL = (j4-128)·(-13)``, ``gELE = (j5-128)·13``), ``[7]`` bit 2 the arming switch. Builds with
+``REMOCON_PWM`` keep gTHR 0 (no RC receiver is modelled).
 
-Sensor faults (``mount``): the board mounted turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
-``config_drone.h`` would also read it: ``turned-90`` (the board's x along the frame's forward axis: the firmware's x
-and y swapped), ``turned-180`` (x and y reversed). The motion stays the frame's; the sensor reads it turned.
+Sensor faults (``mount``): the board turned on the frame, as a wrong ``COORDINATE_SYSTEM`` in ST's
+``config_drone.h``: ``turned-90`` (x and y swapped), ``turned-180`` (x and y reversed).
 
-Host → drone bytes (the two-way link, USART1 RX: :meth:`Emulation.send_at`, :meth:`Emulation.send`) arrive on the
-emulated RX line at the baud rate's pace; :meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
+Host → drone bytes (:meth:`Emulation.send_at`, :meth:`Emulation.send`) reach USART1 RX at the baud rate's pace;
+:meth:`Emulation.take_host_bytes` hands them back for ``H`` chunks.
 """
 
 from __future__ import annotations
 
+import functools
+import heapq
+import itertools
 import math
 import queue
 import time
@@ -43,43 +43,33 @@ from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
-from steval_link.emulation.scenarios import scenario
-from steval_link.emulation.seeds import random_streams
+from steval_link.emulation.scenarios import random_streams, scenario
 from steval_link.emulation.sensors import SensorBus, body_to_sensor_counts
 from steval_link.errors import ParamError, UserError
 
 __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUNTS", "joydata_bytes"]
 
-#: motion is rendered this many seconds at a time
-WINDOW_S = 10.0
+WINDOW_S = 10.0  #: motion is rendered this many seconds at a time
 _WINDOW_TICKS = int(round(WINDOW_S / C.TICK_PERIOD_S))
-#: the watchdog: no USART1 byte for this long (emulated) while the firmware should be talking → stop with where
-WATCHDOG_S = 6.0
+WATCHDOG_S = 6.0  #: the watchdog: no USART1 byte or AHRS step for this long (emulated) → stop, saying where
 
 
 @dataclass
 class EmulationOptions:
     elf: Path | str
     scenario: str = "bench"
-    #: a BROAD trial: its .npz, or a loaded :class:`~steval_link.emulation.broad.BroadTrial`
-    broad: Path | str | BroadTrial | None = None
+    broad: Path | str | BroadTrial | None = None  #: a BROAD trial: its .npz, or loaded
     duration_s: float | None = None
     seed: int = 0
     throttle: str | None = None
     skip_idle: bool = True
-    #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
-    log_samples: int = 0
-    #: stop with the CPU's whereabouts after this long (emulated) without a USART1 byte or an AHRS step
+    log_samples: int = 0  #: keep this many LSM6DSL samples the firmware read (tests compare them with sensor_model)
     watchdog_s: float = WATCHDOG_S
-    #: the board mounted turned on the frame (a sensor fault, see the module docstring): None, or a MOUNTS key
-    mount: str | None = None
-
-    #: the command line that made this run, for the capture header (the CLI's)
-    command_line: str | None = None
+    mount: str | None = None  #: the board turned on the frame (a sensor fault): None, or a MOUNTS key
+    command_line: str | None = None  #: the command line that made this run, for the capture header (the CLI's)
 
     def settings(self) -> dict:
-        """What determines the run, by parameter name: the motion (``broad`` or ``scenario``), ``duration_s``,
-        ``seed``, ``throttle``, ``mount`` (those given)."""
+        """What determines the run (the parameters given), by parameter name."""
         out = {"broad": str(self.broad)} if self.broad is not None else {"scenario": self.scenario}
         out.update(duration_s=self.duration_s, seed=self.seed, throttle=self.throttle, mount=self.mount)
         return {k: v for k, v in out.items() if v is not None}
@@ -96,29 +86,20 @@ MOUNTS: dict[str, np.ndarray] = {
 }
 
 
-def check_mount(mount: str | None) -> np.ndarray | None:
-    """The rotation of a ``--mount`` name (None for a correctly mounted board); :class:`UserError` if unknown."""
-    if mount is None:
-        return None
-    if mount not in MOUNTS:
-        raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
-    return MOUNTS[mount]
-
-
 class ScenarioMotion:
     """A built-in scenario's true motion + the LSM6DSL (bias, noise, ADC) → sensor-axis counts per tick."""
 
     def __init__(
         self, name: str, total_s: float, seed: int, throttle: str | None = None, trial=None, mount: str | None = None
     ) -> None:
+        if mount is not None and mount not in MOUNTS:
+            raise ParamError(f"unknown {{mount}} {mount!r}; one of: {', '.join(MOUNTS)}", "mount")
         self.name = name
-        self._mount = check_mount(mount)
-        self.total_s = total_s
+        self._mount = None if mount is None else MOUNTS[mount]
         self.seed = seed
         self.trial = trial
         self._thr_fn = M.parse_throttle(throttle) if throttle is not None else None
-        # the same random streams as `steval synth` for the same seed: the same tilts, hover and sensor offsets
-        streams = random_streams(seed)
+        streams = random_streams(seed)  # as steval synth's for the same seed: the same moves and sensor offsets
         if trial is None:
             sc = scenario(name, "or {broad} TRIAL.npz")
             try:
@@ -129,67 +110,40 @@ class ScenarioMotion:
                     f"{sc.default_duration_s:g} s), got {total_s:g}",
                     "duration_s",
                 ) from None
-        #: a scenario with sticks has the remote connected from power-up (centred sticks, throttle 0, disarmed)
-        self.remote_from_start = trial is None and self._kin.sticks is not None
+        self.remote_from_start = trial is None and self._kin.sticks is not None  #: sticks: connected at power-up
         self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
-        #: the last two windows rendered (the remote reads a tick ahead of the sensor: both sides of an edge)
-        self._rendered = self._previous = None
-        self._acc = self._gyro = self._thr = self._sticks = self._armed = self._joydata = None
+        self._rendered = functools.lru_cache(maxsize=2)(self._render)  # the remote reads a tick ahead: 2 windows
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
-    def _render(self, w: int) -> None:
+    def _render(self, w: int) -> tuple:
+        """Window ``w``: its first tick, the acc and gyro counts, the remote's thr, sticks, armed and joydata."""
         n = _WINDOW_TICKS
         k0 = w * n
         t = (k0 + np.arange(n)) * C.TICK_PERIOD_S
         rng = np.random.default_rng([self.seed, 3, w])
         if self.trial is not None:
             t0 = self.first_tick_s if self.first_tick_s is not None else 1.0
-            rel = np.clip(t - t0, 0.0, self.trial.t_s[-1])
-            prof = M.broad_profile(self.trial, t0 + rel, t0, self._thr_fn)
+            prof = M.broad_profile(self.trial, t0 + np.clip(t - t0, 0.0, self.trial.t_s[-1]), t0, self._thr_fn)
             acc, gyro = prof.acc_mg, prof.gyro_mdps
         else:
             prof = M.render(self.name, self._kin, t, rng, self._thr_fn)
             s = self.sensor
             acc = prof.acc_mg + np.asarray(s.acc_bias_mg) + s.acc_noise_mg * rng.standard_normal((n, 3))
-            hold = sm.gyro_hold_index(t)
-            u, inv = np.unique(hold, return_inverse=True)
+            u, inv = np.unique(sm.gyro_hold_index(t), return_inverse=True)  # noise held like the 416 Hz reading
             noise = rng.standard_normal((len(u), 3))[inv]
             gyro = prof.gyro_mdps + np.asarray(s.gyro_bias_mdps) + s.gyro_noise_mdps * noise
         if self._mount is not None:
             acc, gyro = acc @ self._mount.T, gyro @ self._mount.T
-        self._acc, self._gyro = body_to_sensor_counts(acc, gyro)
-        self._thr = prof.thr
-        self._sticks, self._armed = prof.sticks, prof.armed
-        self._joydata = _joydata_table(self._thr, self._sticks, self._armed)
-        self._window = w
-        self._k0 = k0
-        self._previous, self._rendered = (
-            self._rendered,
-            (w, k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata),
-        )
-
-    def forget(self) -> None:
-        """Render the windows again (their trial time changed)."""
-        self._window = -1
-        self._rendered = self._previous = None
+        acc, gyro = body_to_sensor_counts(acc, gyro)
+        return k0, acc, gyro, prof.thr, prof.sticks, prof.armed, _joydata_table(prof.thr, prof.sticks, prof.armed)
 
     def _at(self, k: int) -> int:
         w = max(k, 0) // _WINDOW_TICKS
         if w != self._window:
-            if self._previous is not None and self._previous[0] == w:  # back across a window's edge: kept
-                self._previous, self._rendered = self._rendered, self._previous
-                (self._window, self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata) = (
-                    self._rendered
-                )
-            else:
-                self._render(w)
+            self._window = w
+            self._k0, self._acc, self._gyro, self._thr, self._sticks, self._armed, self._joydata = self._rendered(w)
         return max(k, 0) - self._k0
-
-    def window_row(self, k: int) -> int:
-        """Tick ``k``'s row in the window rendered last, -1 if not there."""
-        i = k - self._k0 if self._window >= 0 else -1
-        return i if i < _WINDOW_TICKS else -1
 
     def counts(self, k: int):
         i = self._at(k)
@@ -203,8 +157,7 @@ class ScenarioMotion:
         return int(self._thr[i]), sticks, armed
 
     def remote_bytes(self, k: int) -> tuple[int, bytes]:
-        """At tick ``k``: 1 if the remote moves (a throttle or the arming switch), else 0, and its
-        ``joydata[2..7]`` (:func:`joydata_bytes`; ``[1]`` is the throttle's byte)."""
+        """At tick ``k``: 1 if the remote moves (throttle or arming) else 0, and its ``joydata[2..7]``."""
         j = 7 * self._at(k)
         return self._joydata[j + 6], self._joydata[j : j + 6]
 
@@ -219,16 +172,12 @@ class EmulationReport:
     skipped_instructions: int
     interrupts: dict[str, int]
     usart_bytes: int
-    first_byte_s: float | None
     first_attitude_s: float | None
     tim9_start_s: float | None
     ahrs_steps: int
     step_instructions: list[int] = field(default_factory=list)
     dwt_windows: list[int] = field(default_factory=list)
-    hci_requests: int = 0
-    native_counter: bool = True
-    #: wall seconds spent in :meth:`Emulation.chunks` (the board and its Python models, not the consumer)
-    wall_s: float = 0.0
+    wall_s: float = 0.0  #: wall seconds spent in :meth:`Emulation.chunks` (not the consumer)
 
     def lines(self) -> list[str]:
         out = [
@@ -241,21 +190,17 @@ class EmulationReport:
                 f"TIM9 started at {self.tim9_start_s:.4f} s; first attitude step at "
                 + (f"{self.first_attitude_s:.4f} s" if self.first_attitude_s is not None else "-")
             )
-        if self.step_instructions:
-            a = np.asarray(self.step_instructions)
-            out.append(
-                f"instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; "
-                f"instruction counts, not M4 cycles): min {a.min()} median {int(np.median(a))} max {a.max()}"
-            )
-        if self.dwt_windows and any(self.dwt_windows):
-            d = np.asarray(self.dwt_windows)
-            out.append(
-                f"firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; status cyc_*): "
-                f"min {d.min()} median {int(np.median(d))} max {d.max()}"
-            )
-        irq = ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))
-        out.append(f"interrupts: {irq}")
-        return out
+        stats = {
+            "instructions per AHRS step (ahrs_fusion_ag + QuaternionToEuler, interrupts excluded; instruction counts, "
+            "not M4 cycles)": self.step_instructions,
+            "firmware DWT window (CYCCNT delta, = emulated instructions incl. interrupts; "
+            "status cyc_*)": self.dwt_windows,
+        }
+        for what, values in stats.items():
+            if any(values):
+                a = np.asarray(values)
+                out.append(f"{what}: min {a.min()} median {int(np.median(a))} max {a.max()}")
+        return [*out, "interrupts: " + ", ".join(f"{k} {v}" for k, v in sorted(self.interrupts.items()))]
 
 
 _EXC_NAMES = {15: "SysTick", 40: "TIM9", 44: "TIM2", 53: "USART1", 26: "EXTI4"}
@@ -287,10 +232,8 @@ class Emulation:
     def __init__(
         self, options: EmulationOptions, *, bluenrg=None, tick_start_ms: int = 0, ble_connect_s: float | None = None
     ) -> None:
-        """``bluenrg``: an ``ble_capture.EmulatedBlueNrg`` answering the firmware's HCI requests (GATT handles,
-        RSSI, the BLE notifications it sends); ``tick_start_ms``: ``uwTick`` (HAL_GetTick) at ``main`` (e.g. just
-        before the BLE tick's wrap at 2^19 ms); ``ble_connect_s``: a central (a laptop, not the remote: joydata
-        stays as the throttle makes it) connects at this emulated time (else at the remote's first stick move)."""
+        """``bluenrg``: an ``ble_capture.EmulatedBlueNrg`` answering HCI requests; ``tick_start_ms``: ``uwTick`` at
+        ``main``; ``ble_connect_s``: a central (not the remote) connects at this emulated time."""
         self.options = options
         self._connect_at = None if ble_connect_s is None else int(ble_connect_s * C.CPU_HZ)
         if options.duration_s is not None and not (options.duration_s > 0 and math.isfinite(options.duration_s)):
@@ -300,15 +243,9 @@ class Emulation:
         self.elf = Elf(options.elf)
         trial = options.broad  # a path, or already loaded (e.g. cut short by steval evaluate)
         if trial is not None and not isinstance(trial, BroadTrial):
-            try:
-                trial = load_trial(trial)
-            except (OSError, ValueError, KeyError) as exc:
-                raise UserError(f"cannot read BROAD trial {options.broad}: {exc}") from None
-        if trial is not None:
-            name, default = trial.name, float(trial.t_s[-1]) + 3.0
-        else:
-            name = options.scenario
-            default = scenario(name, "or {broad} TRIAL.npz").default_duration_s
+            trial = load_trial(trial)
+        name = options.scenario if trial is None else trial.name
+        default = scenario(name, "or {broad} TRIAL.npz").default_duration_s if trial is None else trial.t_s[-1] + 3.0
         self.duration_s = float(options.duration_s if options.duration_s is not None else default)
         self.motion = ScenarioMotion(name, self.duration_s, options.seed, options.throttle, trial, options.mount)
         self.bus = SensorBus(self.motion, log_limit=options.log_samples)
@@ -323,42 +260,35 @@ class Emulation:
         self.board.tick_observers.append(self._on_tick)
         self.board.tick_planner = self.plan_ticks
         self._steps: list[int] = []
-        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry, inputs ready) and end (its
-        #: Euler angles computed): a debugger's view of the step (e.g. the firmware's globals read by symbol)
+        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry) and end (Euler angles computed)
         self.step_start_observers: list[Callable[[Board], None]] = []
         self.step_end_observers: list[Callable[[Board], None]] = []
         self._dwt: list[int] = []
-        self._step_start = None
-        self._cyc_start = None
+        self._step_start = None  # (instructions, exception instructions, CYCCNT) at the step's start
         self._first_step_s: float | None = None
         self.n_steps = 0
         self._wall_s = 0.0
         self._bytes = 0
-        self._first_byte_s: float | None = None
         self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
-        self._host_sched: list[tuple[int, int, bytes]] = []  # (instruction count, order, bytes) not yet on the line
+        self._host_sched: list[tuple[int, int, bytes]] = []  # heap of (instruction count, order, bytes) to send
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
-        self._host_order = 0
+        self._host_order = itertools.count()
         self._install_step_probes()
-        self.bluenrg = bluenrg.attach(self.board) if bluenrg is not None else None
+        self.board.hci_handler = bluenrg
         tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
         if tick_start_ms and tick is not None and main is not None:  # after the startup code zeroed .bss
             start = int(tick_start_ms) & 0xFFFFFFFF
             self.board.probe(main, lambda board: board.ram_write(tick, start.to_bytes(4, "little")))
 
-    # -- host → drone bytes (USART1 RX)
     def send_at(self, data: bytes, t_s: float) -> None:
-        """Schedule ``data`` (host → drone) to start on the RX line at emulated time ``t_s`` (s since power-up), or
-        as soon as bytes scheduled before it are through. A time already past means now."""
+        """Schedule ``data`` (host → drone) on the RX line at emulated time ``t_s`` (s), after what is before it."""
         if not data:
             return
         if not math.isfinite(t_s) or t_s < 0:
             raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
         t = max(int(round(t_s * C.CPU_HZ)), self.board.now)
         self.board.usart1.inject(bytes(data), t)
-        self._host_order += 1
-        self._host_sched.append((t, self._host_order, bytes(data)))
-        self._host_sched.sort()
+        heapq.heappush(self._host_sched, (t, next(self._host_order), bytes(data)))
 
     def send(self, data: bytes) -> None:
         """Queue ``data`` (host → drone) from any thread: it goes on the RX line at the start of the next slice."""
@@ -371,44 +301,37 @@ class Emulation:
         return out
 
     def _host_progress(self) -> None:
-        while True:
-            try:
-                data = self._live_tx.get_nowait()
-            except queue.Empty:
-                break
-            self.send_at(data, self.board.now / C.CPU_HZ)
+        while not self._live_tx.empty():  # this thread is the one consumer
+            self.send_at(self._live_tx.get_nowait(), self.board.now / C.CPU_HZ)
         now = self.board.now
         while self._host_sched and self._host_sched[0][0] <= now:
-            t, _, data = self._host_sched.pop(0)
+            t, _, data = heapq.heappop(self._host_sched)
             self._host_sent.append((data, t / C.CPU_HZ))
 
-    # -- the remote control and the TIM9 tick
     def _on_tick(self, board: Board) -> None:
         motion = self.motion
         if motion.trial is not None and motion.first_tick_s is None:
             motion.first_tick_s = board.now / C.CPU_HZ
-            motion.forget()  # render again with trial time 0 at this tick
+            motion._window = -1  # render again with trial time 0 at this tick
+            motion._rendered.cache_clear()
         if self._joy is None:
             return
         moves, joy = motion.remote_bytes(self.bus.tick_index(board) + 1)
         if not self._remote_connected and self._connected is not None:
             central = self._connect_at is not None and board.now >= self._connect_at
             if moves or central or motion.remote_from_start:
-                # the BLE remote connects with its first stick move: ST's main loop takes gTHR from joydata only
-                # while `connected` (else gTHR = 0), and then also sends its BLE notifications every step
+                # ST's main loop takes gTHR from joydata only while `connected` (and then sends BLE notifications)
                 board.ram_write(self._connected.addr, (1).to_bytes(max(self._connected.size, 1), "little"))
                 self._remote_connected = True
-        if self._remote_connected:
-            board.ram_write(self._joy + 2, joy)
-        else:
-            board.ram_write(self._joy + 3, joy[1:2])
+        cols = slice(0, 6) if self._remote_connected else slice(1, 2)  # before: the throttle's byte only
+        board.ram_write(self._joy + 2 + cols.start, joy[cols])
 
     def plan_ticks(self, board: Board) -> tuple | None:
-        """What :meth:`_on_tick` and the sensors do at the next TIM9 updates, while the rendered window gives it:
-        (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote bytes (n, m) uint8, the instruction
-        count it holds until or None). None: the next update needs :meth:`_on_tick`."""
+        """The next TIM9 updates as tables (updates n, LSM6DSL outputs 0x22..0x2D (n, 12) uint8, RAM address, remote
+        bytes (n, m) uint8, the instruction count it holds until or None); None: the next needs :meth:`_on_tick`."""
         m = self.motion
-        i = m.window_row(self.bus.tick_index(board) + 1)  # the next update's sensor row; the remote reads the next
+        k = self.bus.tick_index(board) + 1  # the next update's sensor row (the remote reads the one after)
+        i = k - m._k0 if m._window >= 0 and k - m._k0 < _WINDOW_TICKS else -1
         n = _WINDOW_TICKS - 1 - i
         if i < 0 or n <= 0 or (self._joy is not None and not self._remote_connected and m.remote_from_start):
             return None
@@ -423,7 +346,6 @@ class Emulation:
         img = np.concatenate([m._gyro[i : i + n], m._acc[i : i + n]], 1).astype("<i2").view(np.uint8)
         return n, np.ascontiguousarray(img), addr, np.ascontiguousarray(rows[:n, cols]), until
 
-    # -- instruction counts of the AHRS step
     def _install_step_probes(self) -> None:
         b, e = self.board, self.elf
         # ST's filter; else the patch's hook right before it (a build whose filter function has another name)
@@ -434,8 +356,7 @@ class Emulation:
             b.probe(end, self._on_step_end)
 
     def _on_step_start(self, board: Board) -> None:
-        self._step_start = (board.instructions_now(), board.exception_instructions)
-        self._cyc_start = board.scs.cyccnt()
+        self._step_start = (board.instructions_now(), board.exception_instructions, board.scs.cyccnt())
         if self._first_step_s is None:
             self._first_step_s = board.now / C.CPU_HZ
         for ob in self.step_start_observers:
@@ -444,17 +365,16 @@ class Emulation:
     def _on_step_end(self, board: Board) -> None:
         if self._step_start is None:
             return
-        i0, x0 = self._step_start
+        i0, x0, c0 = self._step_start
         n = board.instructions_now() - i0 - (board.exception_instructions - x0)
         self.n_steps += 1
         if len(self._steps) < 100_000:
             self._steps.append(n)
-            self._dwt.append(board.scs.cyccnt() - self._cyc_start)
+            self._dwt.append(board.scs.cyccnt() - c0)
         self._step_start = None
         for ob in self.step_end_observers:
             ob(board)
 
-    # -- the motion's time base
     def tick_index(self) -> int:
         """Motion tick index of the latest TIM9 update (the sample the ISR last read)."""
         return self.bus.tick_index(self.board)
@@ -464,24 +384,19 @@ class Emulation:
         first = self.board.tim9.first_update
         if first is None:
             raise ValueError("TIM9 has not started")
-        k0 = self.bus.tick_index_of_update(1)
-        return (first + (np.asarray(k) - k0) * C.TICK_CYCLES) / C.CPU_HZ
+        return (first + (np.asarray(k) - (self.bus.tick_offset or 0)) * C.TICK_CYCLES) / C.CPU_HZ
 
     def trial_time_s(self, k) -> np.ndarray | float:
-        """BROAD runs: trial time (s) of the sample the sensors hold at motion tick ``k``: ``k · TICK_PERIOD_S`` minus
-        the first TIM9 tick's emulated time. Not clipped (the sensors hold the trial's first sample before 0 and its
-        last after its end), so a caller can tell the ticks outside the trial."""
+        """BROAD runs: trial time (s) of motion tick ``k``, not clipped (a caller tells the ticks outside the trial)."""
         if self.motion.first_tick_s is None:
             raise ValueError("TIM9 has not started")
         return np.asarray(k) * C.TICK_PERIOD_S - self.motion.first_tick_s
 
-    # -- running
     def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:
         """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
         b = self.board
         end = int(round(self.duration_s * C.CPU_HZ))
-        last_byte_t = 0
-        last_steps, last_progress_t = 0, 0
+        last_byte_t = last_steps = last_progress_t = 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
         while b.now < end:
             self._host_progress()
@@ -489,11 +404,9 @@ class Emulation:
             b.run_until(min(end, b.now + slice_cycles))
             self._wall_s += time.perf_counter() - t0
             self._host_progress()
-            data, first_t, last_t = b.take_output()
+            data, _, last_t = b.take_output()
             if data:
                 last_byte_t = last_t
-                if self._first_byte_s is None:
-                    self._first_byte_s = first_t / C.CPU_HZ
                 self._bytes += len(data)
                 yield data, last_byte_t / C.CPU_HZ
             if self.n_steps != last_steps:
@@ -516,7 +429,6 @@ class Emulation:
 
     def report(self) -> EmulationReport:
         b = self.board
-        tim9 = b.tim9.first_update
         return EmulationReport(
             elf=str(self.elf.path),
             emulated_s=b.now / C.CPU_HZ,
@@ -524,14 +436,11 @@ class Emulation:
             skipped_instructions=b.stats.skipped_instructions,
             interrupts={_EXC_NAMES.get(k, f"exception {k}"): v for k, v in b.stats.interrupts.items()},
             usart_bytes=self._bytes,
-            first_byte_s=self._first_byte_s,
             first_attitude_s=self._first_step_s,
-            tim9_start_s=None if tim9 is None else tim9 / C.CPU_HZ,
+            tim9_start_s=None if b.tim9.first_update is None else b.tim9.first_update / C.CPU_HZ,
             ahrs_steps=self.n_steps,
             step_instructions=list(self._steps),
             dwt_windows=list(self._dwt),
-            hci_requests=b.hci_requests,
-            native_counter=b.native,
             wall_s=self._wall_s,
         )
 

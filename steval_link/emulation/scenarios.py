@@ -1,8 +1,8 @@
-"""The built-in motion scenarios (:data:`SCENARIOS`) and what they are built of: smooth functions of time (float64,
-s since power-up), eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are
-exact derivatives the sensors can sample anywhere. A scenario is a function of the run's length and a random
-generator that returns its :class:`Kinematics`; each starts at rest, so the firmware's offset calibration sees a
-still drone. :mod:`steval_link.emulation.motion` renders them.
+"""The built-in motion scenarios (:data:`SCENARIOS`), built of smooth functions of time (float64, s since power-up):
+eased moves (:class:`Steps`) and random wander (:class:`Sines`), so rates and accelerations are exact derivatives the
+sensors can sample anywhere. A scenario maps the run's length and a random generator to :class:`Kinematics`; each
+starts at rest, so the offset calibration sees a still drone; :mod:`.motion` renders them. :func:`random_streams`:
+one seed's random streams (``steval synth`` and ``steval emulate`` draw the same moves and offsets from them).
 """
 
 from __future__ import annotations
@@ -19,6 +19,25 @@ from steval_link.quat import quaternion_from_euler
 G_MPS2 = 9.80665  #: standard gravity, m/s² (the mg ↔ m/s² conversion of the kinematics)
 MG_PER_MPS2 = 1000.0 / G_MPS2
 DEG = np.pi / 180.0
+SEED_SALT = 0x5EA1  #: mixed into every seed, so these streams differ from a plain ``default_rng(seed)``
+
+
+@dataclass(frozen=True)
+class RandomStreams:
+    """Independent generators of one seed, one per job (spawned in this order)."""
+
+    motion: np.random.Generator  #: the scenario's moves, throttle jitter, motor vibration
+    sensor: np.random.Generator  #: the LSM6DSL's offsets and slow gyro drift
+    noise: np.random.Generator  #: the sensor's white noise per reading
+    fw: np.random.Generator  #: firmware step timing
+    drop: np.random.Generator  #: forced frame drops
+    host: np.random.Generator  #: host-side read timing
+    boot: np.random.Generator  #: the boot text's timing
+
+
+def random_streams(seed: int) -> RandomStreams:
+    """The streams of ``seed``: ``SeedSequence([seed, SEED_SALT])`` spawned into seven generators."""
+    return RandomStreams(*(np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), SEED_SALT]).spawn(7)))
 
 
 def rotmat(q) -> np.ndarray:
@@ -67,7 +86,7 @@ class Steps:
         self.moves.append((float(t0), float(dur), float(delta)))
 
     def _index(self, t):
-        """(t0, dur, delta of the moves; at each t the index of the last move begun (−1: none), clipped to ≥ 0)."""
+        """t0, dur, delta of the moves; at each t the last move begun (−1: none), and that clipped to ≥ 0."""
         m = np.array(self.moves, dtype=np.float64).reshape(-1, 3)
         i = np.searchsorted(m[:, 0], t, side="right") - 1
         return m[:, 0], m[:, 1], m[:, 2], i, np.clip(i, 0, len(m) - 1)
@@ -160,14 +179,11 @@ class Scenario:
     build: Callable[[float, np.random.Generator], Kinematics]
 
 
-#: Built-in scenarios by name, in the order they are defined below.
-SCENARIOS: dict[str, Scenario] = {}
+SCENARIOS: dict[str, Scenario] = {}  #: built-in scenarios by name, in the order they are defined below
 
 
 def _scenario(name: str, default_duration_s: float, min_duration_s: float):
-    """Registers the decorated builder ``(T, rng) -> Kinematics`` as the built-in scenario ``name``."""
-
-    def register(build):
+    def register(build):  # the builder ``(T, rng) -> Kinematics`` becomes the built-in scenario ``name``
         SCENARIOS[name] = Scenario(name, " ".join(build.__doc__.split()), default_duration_s, min_duration_s, build)
         return build
 
@@ -186,11 +202,9 @@ def _surface_tilt(rng) -> tuple[float, float]:
 
 def _add_tilts(kin_thx: Steps, kin_thy: Steps, t_start: float, t_end: float, rng) -> float:
     """Hand tilts (pitch ±30°, roll ±30°, then both; each out, hold, back, pause) until ``t_end``; when they end."""
-    t = t_start
-    pattern = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)]
-    last = t_start
+    t = last = t_start
     while True:
-        for sx, sy in pattern:
+        for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1)):
             amp = rng.uniform(26.0, 34.0) * DEG
             move = rng.uniform(1.0, 1.5)
             hold = rng.uniform(1.0, 2.0)
@@ -266,9 +280,7 @@ def _hand_tilts(T_end: float, rng, T_start: float = 3.0) -> Kinematics:
 def _yaw_spin(T: float, rng) -> Kinematics:
     """on a turntable (~30 rpm, off-axis), spin up, spin, stop, reverse; throttle 0"""
     x0, y0 = _surface_tilt(rng)
-    rate = Steps()
-    t = 4.0
-    sign = 1.0
+    rate, t, sign = Steps(), 4.0, 1.0
     while t + 8.0 <= T:
         w = rng.uniform(160.0, 200.0) * DEG * sign  # a turntable at ~30 rpm
         ramp = rng.uniform(1.2, 2.0)
@@ -287,20 +299,14 @@ def _yaw_spin(T: float, rng) -> Kinematics:
 
 
 def _take_off(ground: Kinematics, t0: float, T: float, rng, steer=(_zero, _zero), yaw_gain=1.0, yaw_extra=_zero):
-    """``ground``'s motion until a take-off at t0, then a hover with attitude wander (plus the ``steer`` responses
-    of thx, thy), landing before T: throttle, airborne weight and altitude."""
+    """``ground``'s motion, then from t0 a hover with attitude wander (plus ``steer`` of thx, thy), landing by T."""
     t_land = T - 6.0
-    thr = Steps()
-    thr.move(t0, 1.5, 380.0)  # arm and spool up: passes MIN_THR (200) on the ground
-    thr.move(t0 + 1.5, 1.0, 140.0)  # take-off throttle ~520
-    thr.move(t_land, 2.0, -140.0)  # descend
-    thr.move(t_land + 3.0, 1.0, -380.0)  # disarm
+    # arm and spool up past MIN_THR (200) on the ground, take off at ~520, descend, disarm
+    thr = Steps(0.0, [(t0, 1.5, 380.0), (t0 + 1.5, 1.0, 140.0), (t_land, 2.0, -140.0), (t_land + 3.0, 1.0, -380.0)])
     thr_wander = Sines.random(rng, 22.0, 0.2, 1.5, 5)
     air = Steps(0.0, [(t0 + 2.0, 0.4, 1.0), (t_land + 2.3, 0.3, -1.0)])
     climb = _vertical_acc([_lift(t0 + 3.0, 1.0, 2.0, t_land + 1.0)])
-    fly = Steps(
-        0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)]
-    )  # the wander fades in and out around take-off, landing
+    fly = Steps(0.0, [(t0 + 2.0, 2.5, 1.0), (t_land, 2.3, -1.0)])  # the wander fades in and out
     wander = [Sines.random(rng, 2.0 * DEG, 0.08, 1.5, 6) for _ in range(2)]
     yaw_w = Sines.random(rng, 12.0 * DEG, 0.02, 0.2, 3)
 
@@ -333,8 +339,7 @@ def _freefall(T: float, rng) -> Kinematics:
     t_pick = 3.0
     drops = np.arange(5.0, T - 2.0 + 1e-9, 7.0)
     fall_s, catch_s = 0.5, 0.25
-    v_mps = G_MPS2 * fall_s
-    peak = 2 * v_mps / catch_s * MG_PER_MPS2  # Hann pulse with area v
+    peak = 2 * (G_MPS2 * fall_s) / catch_s * MG_PER_MPS2  # Hann pulse with area v = g · fall_s
     heights = [_lift(t_pick, 0.4, 1.0)]
     for td in drops:
         # tumbles a little while falling, the catch leaves it tilted, the hand levels it and lifts it back
@@ -372,8 +377,6 @@ def _demo(T: float, rng) -> Kinematics:
 
 #: the firmware's stick scaling (rc.c): gELE/gAIL of ±RC_FULLSCALE = ±30° target pitch/roll; a gRUD beyond
 #: ±EULER_Z_TH turns the yaw target by 60°·SENSOR_SAMPLING_TIME per AHRS step
-_RC_FULLSCALE = float(C.RC_FULLSCALE)
-_MAX_TILT_RAD = C.MAX_TILT_DEG * DEG
 _YAW_STICK_RADPS = 60.0 * C.DT_S * DEG * C.AHRS_RATE_HZ
 
 
@@ -390,15 +393,14 @@ def _flight(T: float, rng, t0: float = 5.0) -> Kinematics:
     """armed by the remote, take-off, hover, stick moves (nose down, roll right, turn right), landing, disarmed"""
     ground = _bench(T, rng)
     ele, ail, rud = Steps(), Steps(), Steps()
-    t = t0 + 5.0
-    hold = 1.6
+    t, hold = t0 + 5.0, 1.6
     for stick, value in ((ele, 700.0), (ail, -700.0), (rud, -900.0)):
         if t + hold + 1.2 > T - 7.0:
             break
         stick.move(t, 0.3, value)
         stick.move(t + 0.3 + hold, 0.3, -value)
         t += 0.6 + hold + 1.2
-    k = _MAX_TILT_RAD / _RC_FULLSCALE
+    k = C.MAX_TILT_DEG * DEG / C.RC_FULLSCALE
     resp_x = _lagged(ele.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thx = -gELE·k
     resp_y = _lagged(ail.moves, -k * 0.95, 0.1, 0.5)  # euler_rc.thy = -gAIL·k
     yaw_rate = Steps()
@@ -444,8 +446,7 @@ def _preflight(T: float, rng) -> Kinematics:
 
 
 def scenario(name: str, otherwise: str) -> Scenario:
-    """The built-in scenario ``name``; :class:`UserError` naming the built-in ones and ``otherwise`` (the other
-    choice where the error is raised, e.g. "or {broad} TRIAL.npz") if there is none of that name."""
+    """The built-in scenario ``name``; else an error naming them and ``otherwise`` (e.g. "or {broad} TRIAL.npz")."""
     if name not in SCENARIOS:
         raise ParamError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)} ({otherwise})", "broad")
     return SCENARIOS[name]

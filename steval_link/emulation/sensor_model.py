@@ -1,12 +1,9 @@
-"""LSM6DSL sensor model and the STEVAL-FCU001V1 firmware's sensor pipeline (ST release 170120), as numpy functions.
+"""LSM6DSL sensor model and the firmware's sensor pipeline (ST release 170120), as numpy functions.
 
-1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): true motion + bias + white noise → int16 ADC counts → the ST
-   driver's integer mg (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
-2. TIM9 ISR at ``constants.ISR_RATE_HZ`` ≈ 807.69 Hz: power-up calibration (:func:`calibrate_offsets`), offset
-   removal (:func:`remove_offsets`), gyro IIR (:func:`gyro_iir`); the acc sample and the IIR output go to 5-sample
-   FIFOs.
-3. Main loop every 5th tick (``constants.AHRS_RATE_HZ`` ≈ 161.54 Hz): the boxcar average (:func:`fifo_average`) →
-   ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps), the inputs of ``ahrs_fusion_ag``.
+1. LSM6DSL (:class:`Lsm6dsl`, :func:`quantise`): motion + bias + noise → int16 ADC counts → the ST driver's mg
+   (0.122 mg/LSB, ±4 g) and mdps (70 mdps/LSB, ±2000 dps).
+2. TIM9 ISR at ≈ 807.69 Hz: power-up calibration, offset removal, gyro IIR; acc and IIR output into 5-sample FIFOs.
+3. Main loop every 5th tick (≈ 161.54 Hz): the boxcar average → ``acc_ahrs`` (mg), ``gyro_ahrs`` (mdps).
 
 :func:`run_isr` runs 2–3. Arrays are (N, 3) in the firmware's axes: x right, y forward, z up.
 """
@@ -24,20 +21,17 @@ _F32 = np.float32
 CALIBRATION_SKIP_TICKS: int = 800  #: ticks ignored after power-up before the offset calibration starts
 CALIBRATION_TICKS: int = 800  #: ticks summed for the offset calibration
 
-#: gyro output data rate the firmware configures (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); the ISR reads the latest
-#: sample every tick, so gyro readings are a 416 Hz sample-and-hold (see :func:`resample_to_tick` ``hold_hz``)
+#: gyro output data rate (CTRL2_G = 0x6C: 416 Hz, ±2000 dps); each tick reads the latest: a sample-and-hold
 GYRO_ODR_HZ: float = 416.0
 
 
 def gyro_hold_index(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
-    """(N,) int64 index of the output-register sample each time ``t_s`` (s) reads: ``floor((t − t0) · odr)``
-    (sample-and-hold at ``odr_hz``, counted from ``t0_s``; 1e-9 guards ticks that land on a refresh)."""
+    """(N,) int64 index of the output-register sample each time ``t_s`` (s) reads: ``floor((t − t0) · odr)``."""
     return np.floor((np.asarray(t_s, dtype=np.float64) - t0_s) * odr_hz + 1e-9).astype(np.int64)
 
 
 def gyro_hold_times_s(t_s, t0_s: float = 0.0, odr_hz: float = GYRO_ODR_HZ) -> np.ndarray:
-    """(N,) float64 time, s, at which the output register that each time ``t_s`` reads was refreshed:
-    ``t0 + floor((t − t0) · odr) / odr`` (the 416 Hz sample-and-hold of :func:`gyro_hold_index`)."""
+    """(N,) float64 time, s, at which the output register each time ``t_s`` reads was refreshed."""
     return t0_s + gyro_hold_index(t_s, t0_s, odr_hz) / odr_hz
 
 
@@ -75,16 +69,14 @@ def driver_value(raw, sensitivity: float) -> np.ndarray:
 
 
 def quantise(value, sensitivity: float) -> np.ndarray:
-    """What the driver returns for a physical value (mg or mdps): int32 (N, 3), saturated at int16 counts
-    (acc: ±3997.7 mg at 0.122 mg/LSB; gyro: ±2293 dps at 70 mdps/LSB). NaN reads as 0."""
+    """What the driver returns for a physical value (mg or mdps): int32, saturated at int16 counts; NaN reads 0."""
     return driver_value(adc_counts(value, sensitivity), sensitivity)
 
 
 @dataclass(frozen=True)
 class Lsm6dsl:
     """LSM6DSL as the STEVAL configures it (acc ±4 g, gyro ±2000 dps), read once per ISR tick. Noise: white, RMS
-    per reading (the datasheet's typical values, as UMaine Lab 5 Appendix B quotes). Biases: constant offsets (3,)
-    added before quantisation."""
+    per reading (datasheet typical, as Lab 5 Appendix B quotes). Biases: constant offsets before quantisation."""
 
     acc_noise_mg: float = 2.0
     gyro_noise_mdps: float = 75.0
@@ -92,9 +84,8 @@ class Lsm6dsl:
     gyro_bias_mdps: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def read(self, acc_true_mg, gyro_true_mdps, rng: np.random.Generator | int | None = 0, t_tick_s=None):
-        """Driver readings (int32 mg, int32 mdps), each (N, 3), for the true specific force (mg) and rate (mdps, as
-        the output register holds it) at each tick. ``rng``: a Generator or a seed. With ``t_tick_s`` (s), gyro
-        noise is drawn once per 416 Hz ODR sample and held like the reading; otherwise fresh every tick."""
+        """Driver readings (int32 mg, int32 mdps), each (N, 3), of the true specific force and rate at each tick.
+        With ``t_tick_s`` (s), gyro noise is drawn once per 416 Hz ODR sample and held; else fresh every tick."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         acc, gyro = np.asarray(acc_true_mg, dtype=np.float64), np.asarray(gyro_true_mdps, dtype=np.float64)
         acc_meas = acc + np.asarray(self.acc_bias_mg) + self.acc_noise_mg * rng.standard_normal(acc.shape)
@@ -122,8 +113,7 @@ def seeded_lsm6dsl(rng: np.random.Generator) -> Lsm6dsl:
 
 
 def calibrate_offsets(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
-    """The ISR's offset calibration: (acc_offset, gyro_offset) int32, ``(int32_t)((float)sum * 0.00125f)`` of an
-    int32 sum (the fixed factor 1/800 whatever the number of readings, as in the firmware)."""
+    """The ISR's offsets (acc, gyro) int32: ``(int32_t)((float)sum * 0.00125f)`` of int32 sums (1/800 always)."""
     sums = [np.asarray(x, dtype=np.int64).sum(axis=0).astype(np.int32) for x in (acc_mg, gyro_mdps)]  # int32 wraps
     return tuple(np.trunc(s.astype(_F32) * _F32(0.00125)).astype(np.int32) for s in sums)
 
@@ -136,9 +126,8 @@ def remove_offsets(acc_mg, gyro_mdps, acc_offset_mg, gyro_offset_mdps) -> tuple[
 
 
 def gyro_iir(gyro_mdps, state: IirState | None = None) -> np.ndarray:
-    """The ISR's gyro IIR over N ticks, bit-exact float32: (N, 3) float32 mdps, each product and sum rounded to
-    float32 in C order (the firmware's -O0, no-FMA evaluation). ``state`` (zeros when None, as after power-up) is
-    updated in place so a stream can be filtered in chunks."""
+    """The ISR's gyro IIR over N ticks, bit-exact: (N, 3) float32 mdps, each product and sum rounded to float32 in
+    C order (-O0, no FMA). ``state`` (None: zeros, as at power-up) is updated in place to filter in chunks."""
     x = np.asarray(gyro_mdps).astype(_F32)
     st = state if state is not None else IirState()
     a1, a2, b0, b1, b2 = _IIR_F32
@@ -176,8 +165,7 @@ GYRO_LATENCY_S: float = float(iir_frequency_response([0.0])[3][0]) + 0.5 / GYRO_
 
 
 def fifo_average(fifo) -> np.ndarray:
-    """The main loop's boxcar average of FIFOs, (M, 5, 3) → (M, 3) float32: a float32 sum from 0, then
-    ``*= (1.0/5)`` in double stored to float32, as ``acc_ahrs.AXIS_X *= FIFO_Order_Recip``."""
+    """The main loop's boxcar average (M, 5, 3) → (M, 3) float32: a float32 sum, then ``*= (1.0/5)`` in double."""
     f = np.asarray(fifo, dtype=_F32)
     s = np.zeros((f.shape[0], f.shape[2]), dtype=_F32)
     for i in range(f.shape[1]):
@@ -198,9 +186,8 @@ class IsrOutput:
 
 
 def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
-    """Run the TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps
-    (floats truncated). ``calibrate``: the power-up calibration (the pipeline starts at tick 1599); False: from
-    tick 0 with the firmware's offsets before calibration (acc (0, 0, 1000), gyro 0)."""
+    """The TIM9 ISR and the main loop's averaging over per-tick driver readings (T, 3), integer mg and mdps.
+    ``calibrate``: the power-up calibration (from tick 1599); False: from tick 0 with the offsets before it."""
     acc = np.trunc(np.asarray(acc_mg_807, dtype=np.float64)).astype(np.int32)
     gyro = np.trunc(np.asarray(gyro_mdps_807, dtype=np.float64)).astype(np.int32)
     if calibrate:
@@ -224,8 +211,7 @@ def run_isr(acc_mg_807, gyro_mdps_807, *, calibrate: bool = True) -> IsrOutput:
 
 def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
     """The ISR's integrated yaw ``euler_ahrs.thz`` after each tick, float32 rad: ``thz += ((float)gyro_fil.z *
-    (float)COE_MDPS_TO_RADPS) * 0.00125f``, reset to 0 while the throttle ``thr`` (per tick, a scalar or None = 0)
-    is below MIN_THR."""
+    (float)COE_MDPS_TO_RADPS) * 0.00125f``, reset to 0 while ``thr`` (per tick, scalar, None = 0) < MIN_THR."""
     gz = np.asarray(gyro_fil_z_mdps, dtype=_F32)
     inc = (gz * _F32(C.COE_MDPS_TO_RADPS)) * _F32(C.PID_DT_S)
     thr_arr = np.zeros(gz.shape[0], dtype=np.int64) if thr is None else np.broadcast_to(np.asarray(thr), gz.shape)
@@ -238,9 +224,8 @@ def isr_yaw_rad(gyro_fil_z_mdps, thr=None) -> np.ndarray:
 
 
 def resample_to_tick(t_s, signal, hold_hz: float | None = None):
-    """``signal`` (N, ...) sampled at ``t_s`` linearly interpolated onto the ISR ticks from ``t_s[0]`` to ``t_s[-1]``:
-    ``(t_tick_s, signal_tick)``, float64. ``hold_hz``: each tick reads the latest sample of an output register
-    refreshed at that ODR (the gyro's 416 Hz sample-and-hold)."""
+    """``(t_tick_s, signal_tick)``: ``signal`` (N, ...) at ``t_s`` interpolated onto the ISR ticks, float64.
+    ``hold_hz``: each tick reads a register refreshed at that ODR (the gyro's 416 Hz sample-and-hold)."""
     t = np.asarray(t_s, dtype=np.float64)
     x = np.asarray(signal, dtype=np.float64)
     n = int(np.floor((t[-1] - t[0]) * C.ISR_RATE_HZ + 1e-9)) + 1

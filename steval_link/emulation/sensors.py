@@ -1,9 +1,8 @@
 """Register models of the STEVAL-FCU001V1's SPI sensors, answering the firmware's ``Sensor_IO_Read/Write``.
 
 Each is a 128-byte register file with the identity, status and reset behaviour ST's drivers check. The LSM6DSL
-(``spiDevice`` 0) holds the motion's int16 ADC counts in the *sensor's* axes at the moment of the read (ST's driver
-scales them); the LIS2MDL (1) a constant field, the LPS22HB (2) a constant 1013.25 hPa and 25 °C. ST's
-``ReadSensorRawData`` maps them to body axes (x right, y forward, z up): body x = −sensor y, body y = sensor x.
+(``spiDevice`` 0) holds the motion's int16 ADC counts in the *sensor's* axes (``ReadSensorRawData`` maps them to
+body axes: body x = −sensor y, body y = sensor x); the LIS2MDL (1) a constant field, the LPS22HB (2) 1013.25 hPa, 25 °C.
 """
 
 from __future__ import annotations
@@ -29,8 +28,7 @@ def body_to_sensor_counts(acc_mg, gyro_mdps) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Regs:
-    """A sensor's 128-byte register file with the drivers' auto-increment. ``init``: register → its bytes at reset;
-    ``self_clearing``: register → the bits that clear themselves (reset, reboot)."""
+    """A 128-byte register file with auto-increment; ``init``: reset bytes, ``self_clearing``: bits that clear."""
 
     def __init__(self, who_am_i_reg: int, who_am_i: int, init: dict[int, bytes], self_clearing: dict[int, int]):
         self.r = bytearray(128)
@@ -64,8 +62,7 @@ class _Regs:
 
 
 def _devices() -> dict[int, _Regs]:
-    """The three sensors at reset. LIS2MDL: a plausible field, ~ (200, 0, -400) mG at 1.5 mG/LSB; LPS22HB:
-    1013.25 hPa (4096 LSB/hPa) and 25 °C (100 LSB/°C)."""
+    """The sensors at reset. LIS2MDL: ~ (200, 0, -400) mG at 1.5 mG/LSB; LPS22HB: 4096 LSB/hPa, 100 LSB/°C."""
     pressure = int(round(1013.25 * 4096)).to_bytes(3, "little")
     temperature = int(round(25.0 * 100)).to_bytes(2, "little", signed=True)
     field = np.asarray((133, 0, -267), "<i2").tobytes()
@@ -80,9 +77,8 @@ def _devices() -> dict[int, _Regs]:
 
 
 class SensorBus:
-    """The SPI2 sensors as ``Sensor_IO_Read/Write`` see them, fed by ``motion.counts(k)``: the LSM6DSL's (acc, gyro)
-    int16 sensor-axis counts of TIM9 tick ``k`` (0 = the first tick after power-up). Before TIM9 runs a read sees
-    the tick of the emulated time; then the tick of the ISR's update event (one consecutive sample per tick).
+    """The SPI2 sensors as ``Sensor_IO_Read/Write`` see them, fed by ``motion.counts(k)`` (LSM6DSL counts of TIM9
+    tick ``k``, 0 at power-up): before TIM9 runs, the tick of the emulated time; then of the ISR's update event.
     ``log_limit``: keep at most this many served LSM6DSL samples in :attr:`served` (for tests)."""
 
     def __init__(self, motion, *, log_limit: int = 0) -> None:
@@ -90,22 +86,17 @@ class SensorBus:
         self.devices = _devices()
         self.log_limit = log_limit
         self.served: list[tuple] = []  #: (tick, acc counts, gyro counts)
-        self._tick_offset: int | None = None
+        self.tick_offset: int | None = None  #: the motion tick of TIM9's first update
         self._last_tick = -1
-        self._cached_k = None
-        self._cached = None
+        self._cached_k = self._cached = None
 
     def tick_index(self, board) -> int:
         tim = board.tim9
         if tim.first_update is None:
             return board.now // C.TICK_CYCLES
-        if self._tick_offset is None:
-            self._tick_offset = -(-tim.first_update // C.TICK_CYCLES)  # first update → its own tick index
-        return self._tick_offset + tim.updates - 1
-
-    def tick_index_of_update(self, update: int) -> int:
-        """Motion tick index of the TIM9 update number ``update`` (1 = the first)."""
-        return (self._tick_offset or 0) + update - 1
+        if self.tick_offset is None:
+            self.tick_offset = -(-tim.first_update // C.TICK_CYCLES)
+        return self.tick_offset + tim.updates - 1
 
     def read(self, device: int, reg: int, n: int, board) -> bytes:
         dev = self.devices.get(device)
@@ -117,7 +108,7 @@ class SensorBus:
         return dev.read(reg, n, sample)
 
     def lsm6dsl_image(self, board) -> bytes:
-        """The LSM6DSL's 128 registers once a read of its outputs at this tick (as the ISR's first) filled them."""
+        """The LSM6DSL's 128 registers as a read of its outputs at this tick fills them."""
         dev = self.devices[LSM6DSL]
         dev.refresh(self._lsm6dsl_sample(board, True))
         return bytes(dev.r)
@@ -140,8 +131,7 @@ class SensorBus:
             dev.write(reg, data)
 
     def served_driver_readings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(tick (N,), acc_mg int32 (N, 3), gyro_mdps int32 (N, 3)) of the logged reads as the firmware's
-        ``ReadSensorRawData`` gets them: driver values in body axes."""
+        """(tick, acc_mg, gyro_mdps) int32 of the logged reads as ``ReadSensorRawData`` gets them (body axes)."""
         ticks = np.array([s[0] for s in self.served], np.int64)
         readings = []
         for j, sens in ((1, sm.ACC_SENSITIVITY_MG), (2, sm.GYRO_SENSITIVITY_MDPS)):

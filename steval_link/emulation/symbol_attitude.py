@@ -1,10 +1,9 @@
 """The firmware's attitude read by symbol on the emulated board, each AHRS step, as a debugger would.
 
-Any build with its symbols (ST's own, a patched one, the reference firmware) keeps the filter's inputs and outputs
-in globals: ``acc_ahrs`` / ``gyro_ahrs`` (float x, y, z in mg / mdps) and ``gTHR`` (int16) when ``ahrs_fusion_ag``
-is entered; ``ahrs`` (q0..q3 first) and ``euler_ahrs`` (float thx, thy, thz in rad) when the step ends.
-:class:`SymbolAttitude` reads them as rows of ``SYMBOL_DTYPE`` for the capture's chunks ``S``: what the emulator
-read, never frames the firmware sent. AHRS step ``i`` (from 0) is the ``i``-th call of ``ahrs_fusion_ag``.
+Any build with its symbols keeps the filter's inputs and outputs in globals: ``acc_ahrs`` / ``gyro_ahrs`` (float
+mg / mdps) and ``gTHR`` (int16) when ``ahrs_fusion_ag`` is entered; ``ahrs`` (q0..q3) and ``euler_ahrs`` (float
+thx, thy, thz, rad) when the step ends. :class:`SymbolAttitude` reads them as ``SYMBOL_DTYPE`` rows for the
+capture's chunks ``S`` (never frames the firmware sent). Step ``i`` is the ``i``-th call of ``ahrs_fusion_ag``.
 """
 
 from __future__ import annotations
@@ -17,16 +16,14 @@ from steval_link import constants as C
 from steval_link.emulation.runner import Emulation
 from steval_link.link.capture import SYMBOL_DTYPE
 
-#: the globals read, in the order the rows hold them
-SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")
+SYMBOLS = ("acc_ahrs", "gyro_ahrs", "gTHR", "ahrs", "euler_ahrs")  #: the globals read, in the rows' order
 
 _READ_INPUTS, _READ_Q, _READ_EULER = 1, 2, 4
 
 
 class SymbolAttitude:
-    """Reads the AHRS globals of ``emu``'s firmware every step with its step observers (a missing global's fields
-    stay NaN / 0). ``available``: the ELF has ``euler_ahrs`` or ``ahrs`` (else nothing is read); ``count``: every row
-    so far."""
+    """Reads the AHRS globals of ``emu``'s firmware every step (a missing global's fields stay NaN / 0).
+    ``available``: the ELF has ``euler_ahrs`` or ``ahrs`` (else nothing is read); ``count``: every row so far."""
 
     def __init__(self, emu: Emulation) -> None:
         a = self.addr = {name: emu.elf.addr(name) for name in SYMBOLS}
@@ -85,8 +82,7 @@ def _bl_targets(code: bytes, base: int) -> set[int]:
 
 
 def elf_filter_variant(elf) -> tuple[str | None, str]:
-    """(The ST release whose filter an ``Elf`` has, or None; why, in one sentence), from the helpers that
-    ``ahrs_fusion_ag`` calls (:data:`_DOUBLE_HELPERS`; 170120 = 170318 = 301117 beta)."""
+    """(The ST release whose filter an ``Elf`` has, or None; why), from the double helpers ``ahrs_fusion_ag`` calls."""
     sym = elf.by_name.get("ahrs_fusion_ag")
     if sym is None or sym.size <= 0:
         return None, "no ahrs_fusion_ag symbol with a size in the ELF"

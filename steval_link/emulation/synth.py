@@ -1,13 +1,11 @@
 """Emulated drone captures (``steval synth``): a motion profile through the whole STEVAL-FCU001V1 chain to a capture.
 
-``steval emulate`` runs the real firmware instead; synth is for what only it does: joining mid-frame, injected
-drops, the adapter model, text-mode logs. The chain: motion (a scenario or a BROAD trial) → the LSM6DSL and the
-ISR pipeline → the bit-exact ``ahrs_fusion_ag`` replica → the patch's link and TX queue (:mod:`.fw_link`) → a
-USB-UART adapter (:func:`host_chunks`) → a ``.stv`` capture or the plain bytes.
+``steval emulate`` runs the real firmware; synth does what only it does: joining mid-frame, injected drops, the
+adapter model, text-mode logs. Motion (a scenario or a BROAD trial) → LSM6DSL and ISR pipeline → the bit-exact
+``ahrs_fusion_ag`` replica → the link and TX queue (:mod:`.fw_link`) → a USB-UART adapter (:func:`host_chunks`).
 
-Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's zero-rate drift after
-calibration, the BLE module's banner values, the adapter. The same :class:`SynthOptions` give the same bytes
-(seeded generators; capture start time :data:`EPOCH_UNIX_S` + the join time).
+Modelled, not measured: the main loop's latency, the DWT counts' noise, the gyro's drift after calibration, the BLE
+banner values, the adapter. The same :class:`SynthOptions` give the same bytes (capture start :data:`EPOCH_UNIX_S`).
 """
 
 from __future__ import annotations
@@ -26,8 +24,7 @@ from steval_link.emulation import fw_link as fwl
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.broad import load_trial
-from steval_link.emulation.scenarios import scenario
-from steval_link.emulation.seeds import random_streams
+from steval_link.emulation.scenarios import random_streams, scenario
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators.st_mahony import MahonySettings, MahonyState
 from steval_link.estimators.st_mahony import run as mahony_run
@@ -131,8 +128,7 @@ def _check(opts: SynthOptions) -> None:
 
 
 def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Slow zero-rate drift after the power-up calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over
-    minutes, so the calibrated offset is not perfect and the filter's integral terms have work to do."""
+    """Slow zero-rate drift after calibration (warm-up), (T, 3) mdps: ≈ 40 mdps RMS per axis over minutes."""
     out = np.empty((len(t_s), 3))
     for i in range(3):
         f = rng.uniform(0.002, 0.02, 3)
@@ -143,8 +139,7 @@ def _gyro_drift_mdps(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def _span(opts: SynthOptions):
-    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end); UserError for
-    an unknown scenario or a span too short for the firmware's 2 s calibration."""
+    """(BROAD trial or None, scenario or None, capture duration s, s from power-up to the capture's end)."""
     is_path = opts.scenario.endswith(".npz") or os.sep in opts.scenario or "/" in opts.scenario
     trial = load_trial(opts.scenario) if is_path else None
     sc = None if trial is not None else scenario(opts.scenario, "or a BROAD trial .npz path")
@@ -183,14 +178,32 @@ def _replica_with_snapshots(isr, thr_step: np.ndarray, settings: MahonySettings)
 
 
 def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None = None) -> SynthResult:
-    """Emulate the drone end to end for ``opts``; deterministic for given options (see the module docstring).
-    ``progress(fraction, stage)`` is called as the stages advance (e.g. ``steval_link.cli.progress``)."""
+    """The modelled drone end to end for ``opts``; ``progress(fraction, stage)`` is called as the stages advance."""
     _check(opts)
-    if progress is None:
-        progress = lambda fraction, stage="": None  # noqa: E731
+    progress = progress or (lambda fraction, stage="": None)
     rs = random_streams(opts.seed)
     trial, sc, duration, total = _span(opts)
-    profile, isr = _sensed(opts, rs, trial, sc, total, progress)
+    # 1-3: the motion and the LSM6DSL at every TIM9 tick to the capture's end, then the ISR
+    first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
+    n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
+    progress(0.0, "motion profile")
+    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
+    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
+    if trial is not None:
+        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
+    else:
+        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
+    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
+    gyro_true = profile.gyro_mdps
+    if profile.measured:
+        sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
+    else:
+        sensor = sm.seeded_lsm6dsl(rs.sensor)
+        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
+    progress(0.55, "LSM6DSL model")
+    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
+    progress(0.6, "ISR pipeline")
+    isr = sm.run_isr(acc_raw, gyro_raw)
     thr_tick = profile.thr.astype(np.int64)
     yaw = sm.isr_yaw_rad(isr.gyro_fil_mdps[:, 2], thr_tick[isr.first_tick :])
     thr_step = thr_tick[isr.step_tick]
@@ -214,39 +227,19 @@ def synthesize(opts: SynthOptions, progress: Callable[[float, str], None] | None
         link.step(k, float(begin[k]), int(cyc_noise[k]), float(txe_u[k]))
     status = link.status_table()
 
-    # 6-7: the bytes in transmit order, and the host
+    # 6-7: the bytes in transmit order, as the host receives them from the join time on
     progress(0.95, "encoding frames")
-    data, chunk_offsets, chunk_times, counts = _received(opts, link, att, rs.host, total)
+    if opts.encoder == "c":
+        stream = fwl.encode_c(link.order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
+    else:
+        stream = fwl.encode(link.order, att)
+    offsets, chunk_offsets, chunk_times = host_chunks(stream, link.order, link.txq.tau, opts.join_at_s, rs.host, total)
+    data, counts = stream[offsets[0] : offsets[1]], fwl.count_frames(link.order, offsets)
     dropped = link.txq.dropped
     header = _header(opts, profile.name, duration)
     return SynthResult(
         data, chunk_offsets, chunk_times, header, att, link.sent, status, dropped, profile, begin / C.CPU_HZ, counts
     )
-
-
-def _sensed(opts: SynthOptions, rs, trial, sc, total: float, progress):
-    """Stages 1-3: the motion and the LSM6DSL at every TIM9 tick, from its first tick to the capture's end, then
-    the firmware's ISR and main-loop averaging. Returns (profile, ISR result)."""
-    first_tick_s = (fwl.TIM9_START_CYCLES + C.TICK_CYCLES) / C.CPU_HZ
-    n_ticks = int(math.floor((total - first_tick_s) * C.ISR_RATE_HZ)) + 1
-    progress(0.0, "motion profile")
-    t = first_tick_s + np.arange(n_ticks, dtype=np.float64) * C.TICK_PERIOD_S
-    thr_fn = M.parse_throttle(opts.throttle) if opts.throttle is not None else None
-    if trial is not None:
-        profile = M.broad_profile(trial, t, first_tick_s, thr_fn)
-    else:
-        profile = M.render(sc.name, sc.build(total, rs.motion), t, rs.motion, thr_fn)
-    profile = M.add_vibrations(profile, [M.parse_vibration(spec) for spec in opts.vibration])
-    gyro_true = profile.gyro_mdps
-    if profile.measured:
-        sensor = sm.Lsm6dsl(acc_noise_mg=0.0, gyro_noise_mdps=0.0)
-    else:
-        sensor = sm.seeded_lsm6dsl(rs.sensor)
-        gyro_true = gyro_true + _gyro_drift_mdps(profile.t_s, rs.sensor)
-    progress(0.55, "LSM6DSL model")
-    acc_raw, gyro_raw = sensor.read(profile.acc_mg, gyro_true, rng=rs.noise, t_tick_s=profile.t_s)
-    progress(0.6, "ISR pipeline")
-    return profile, sm.run_isr(acc_raw, gyro_raw)
 
 
 def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_step: np.ndarray) -> np.ndarray:
@@ -263,36 +256,23 @@ def _attitude_rows(isr, begin: np.ndarray, q: np.ndarray, thz: np.ndarray, thr_s
     return att
 
 
-def _received(opts: SynthOptions, link, att: np.ndarray, rng, total: float):
-    """The bytes the link sent, in transmit order, as the host receives them from the join time on: (data, chunk
-    offsets, chunk times, frame counts)."""
-    order = link.order
-    if opts.encoder == "c":
-        stream = fwl.encode_c(order, att, Path(opts.c_encoder) if opts.c_encoder else default_c_encoder())
-    else:
-        stream = fwl.encode(order, att)
-    sizes = np.array([o[3] for o in order], dtype=np.int64)
-    starts = np.array([o[2] for o in order], dtype=np.float64)
-    offsets, chunk_offsets, chunk_times = host_chunks(stream, sizes, starts, link.txq.tau, opts.join_at_s, rng, total)
-    return stream[offsets[0] : offsets[1]], chunk_offsets, chunk_times, fwl.count_frames(order, offsets)
-
-
 #: data bytes per USB packet, latency timer, USB frame
 ADAPTER_PACKET_BYTES = 62
 ADAPTER_LATENCY_S = 0.016
 USB_FRAME_S = 0.001
 
 
-def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng, total_s: float):
-    """What the host receives through a USB-UART adapter (FTDI FT232R-like) in [join, join + duration]: ``((first,
-    end) stream offsets of the captured bytes, USB packet offsets, their receive times s since the join)``."""
+def host_chunks(stream: bytes, order: list[fwl.Frame], tau: float, join_at_s: float, rng, total_s: float):
+    """What the host receives of the frames ``order`` through a USB-UART adapter (FT232R-like) in [join, total_s]:
+    ``((first, end) stream offsets of the captured bytes, USB packet offsets, their receive times s since join)``."""
     n = len(stream)
     if n == 0:
         return (0, 0), np.zeros(0, np.int64), np.zeros(0)
+    sizes = np.array([o[3] for o in order], dtype=np.int64)
+    starts = np.array([o[2] for o in order], dtype=np.float64)
     frame_off = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-    rep_start = np.repeat(starts, sizes)
     idx = np.arange(n, dtype=np.float64) - np.repeat(frame_off, sizes)
-    end_s = (rep_start + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
+    end_s = (np.repeat(starts, sizes) + (idx + 1) * tau) / C.CPU_HZ  # the stop bit of each byte is out
     join = float(join_at_s)
     first = int(np.searchsorted(end_s, join, side="right")) if join > 0 else 0
     e = end_s[first:]
@@ -308,22 +288,17 @@ def host_chunks(stream: bytes, sizes, starts, tau: float, join_at_s: float, rng,
         if j_full < m and e[j_full] <= expiry:
             t_f, j = e[j_full], j_full
         else:
-            j = int(np.searchsorted(e, expiry, side="right")) - 1
-            t_f = expiry
+            t_f, j = expiry, int(np.searchsorted(e, expiry, side="right")) - 1
         flush_t.append(t_f)
         flush_end.append(j + 1)
         t_last, i = t_f, j + 1
-    flush_t = np.array(flush_t)
     # USB: the host controller picks the packet up at the next 1 ms frame; the OS hands it to the reader later
-    arrive = sof_phase + np.ceil((flush_t - sof_phase) / USB_FRAME_S) * USB_FRAME_S
-    arrive = arrive + rng.exponential(0.00015, len(arrive))
-    arrive = np.maximum.accumulate(arrive)
+    arrive = sof_phase + np.ceil((np.array(flush_t) - sof_phase) / USB_FRAME_S) * USB_FRAME_S
+    arrive = np.maximum.accumulate(arrive + rng.exponential(0.00015, len(arrive)))
     keep = arrive <= total_s
-    flush_end = np.array(flush_end, dtype=np.int64)[keep]
-    arrive = arrive[keep]
-    n_cap = int(flush_end[-1]) if len(flush_end) else 0
-    chunk_offsets = np.concatenate(([0], flush_end[:-1])) if len(flush_end) else np.zeros(0, np.int64)
-    return (first, first + n_cap), chunk_offsets.astype(np.int64), arrive - join
+    ends = np.array(flush_end, dtype=np.int64)[keep]
+    n_cap = int(ends[-1]) if len(ends) else 0
+    return (first, first + n_cap), np.concatenate(([0], ends[:-1]))[: len(ends)].astype(np.int64), arrive[keep] - join
 
 
 def _header(opts: SynthOptions, name: str, duration: float) -> dict:
@@ -351,11 +326,9 @@ def write_output(result: SynthResult, path, *, fmt: str = "auto", force: bool = 
     if kind == "raw":
         blob = result.data
     else:
-        bounds = list(result.chunk_offsets) + [len(result.data)]
-        blob = capture.encode_capture(
-            result.header,
-            ((result.data[bounds[i] : bounds[i + 1]], t) for i, t in enumerate(result.chunk_times_s)),
-        )
+        ends = [*result.chunk_offsets[1:], len(result.data)]
+        chunks = (result.data[a:b] for a, b in zip(result.chunk_offsets, ends))
+        blob = capture.encode_capture(result.header, zip(chunks, result.chunk_times_s))
     tmp = path.with_name(path.name + ".part")
     try:
         tmp.write_bytes(blob)
