@@ -112,24 +112,15 @@ def compare_command(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."
         )
+    _one_capture(captures, estimator, filters, as_json=as_json, plot=plot, force=force, text_map=text_map)
+
+
+def _one_capture(captures, estimator, filters: dict, *, as_json: bool, plot, force: bool, text_map) -> None:
+    """``steval compare [CAPTURE]``: the firmware against the replica and the estimators (text or JSON, figures)."""
     changes, variant = filter_settings(filters)
-    _one_capture(
-        captures[0] if captures else None,
-        estimator,
-        changes,
-        variant,
-        as_json=as_json,
-        plot=plot,
-        force=force,
-        text_map=text_map,
-    )
-
-
-def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, plot, force: bool, text_map) -> None:
-    """``steval compare CAPTURE``: the firmware against the replica and the estimators (text or JSON, figures)."""
     # a missing optional package is a row of the report
     names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
-    src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
+    src = read_recording(captures[0] if captures else demo_capture_path())  # the input first, then the outputs
     check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(src, scaled(progress, 0.0, 0.4), text_map=text_map)
@@ -138,7 +129,6 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
         fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png
         if plot is not None and no_fc_plot is None:
             fc_plot = plot.with_name(f"{plot.stem}-flight-control{plot.suffix or '.png'}")
-        if fc_plot is not None:
             check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
         print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")

@@ -44,13 +44,9 @@ _OFF_WORDS = {"off", "no", "false", "none"}
 
 def _noise(text: str | None, typical: float, what: str, unit: str, on: bool = False) -> float:
     """The noise σ of ``--{what}-noise`` (``on`` or a number); ``on`` (``--noise``): the typical one when not given."""
-    if text is None:
-        return typical if on else 0.0
-    word = text.strip().lower()
-    if word in _ON_WORDS:
-        return typical
-    if word in _OFF_WORDS:
-        return 0.0
+    word = ("on" if on else "off") if text is None else text.strip().lower()
+    if word in _ON_WORDS | _OFF_WORDS:
+        return typical if word in _ON_WORDS else 0.0
     try:
         value = float(word)
     except ValueError:
@@ -96,9 +92,7 @@ def to_json(res: lab5.SimulationResult) -> dict:
                 "gyro_mdps": [json_number(v) for v in res.gyro_mdps[k]],
                 "thr": int(res.thr[k]),
                 "q_wxyz": [json_number(v) for v in res.q_wxyz[k]],
-                "eax_rad": json_number(res.eax_rad[k]),
-                "eay_rad": json_number(res.eay_rad[k]),
-                "eaz_rad": json_number(res.eaz_rad[k]),
+                **{f"{ea}_rad": json_number(getattr(res, f"{ea}_rad")[k]) for ea in ("eax", "eay", "eaz")},
                 "valid": bool(res.valid[k]),
             }
             for k in range(res.iterations)
@@ -153,8 +147,7 @@ def summary(res: lab5.SimulationResult, gyro, acc, throttle: int) -> str:
 
 
 def _zero_acc_notes(res: lab5.SimulationResult) -> list[str]:
-    """What a zero accelerometer input (the Lab 5 baseline) does to the estimator: the firmware's error terms are
-    0, so its correction and KI do nothing; the EKFs wait for a first accelerometer sample to set their tilt."""
+    """What a zero accelerometer input (the Lab 5 baseline) does to the estimator, as notes."""
     zero = ~np.asarray(res.acc_mg, dtype=np.float64).any(axis=1)
     if not zero.any():
         return []
@@ -300,8 +293,9 @@ def _run(what: str, **kwargs) -> lab5.SimulationResult:
         if what:
             raise UserError(f"{what}: {exc}") from None
         if isinstance(exc, ImportError):
-            estimator = kwargs["estimator"]
-            raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
+            raise UserError(
+                f"estimator {kwargs['estimator']!r} needs a package that is not installed ({exc})"
+            ) from None
         raise UserError(str(exc)) from None
 
 
