@@ -9,10 +9,11 @@ import typer
 
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import VariantOption, check_variant
-from steval_link.cli.data import default_broad_data
+from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
+from steval_link.errors import UserError
 from steval_link.estimators.plugins import split_list
 
 _HELP = (
@@ -96,7 +97,9 @@ def evaluate_command(
     from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
 
     variant = check_variant(variant)  # the release's filter of the replica on a --firmware's inputs
-    data = data or default_broad_data()
+    if not data and (found := find_broad_data()) is None:
+        raise UserError("no BROAD trials in the data cache: download them with `steval data broad`, or give DATA")
+    data = data or [found]
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
     check_outputs(outputs, force=force, inputs=inputs)  # and matplotlib for --plot: before the long run

@@ -51,10 +51,6 @@ def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions |
     return check
 
 
-#: exit code of a session that ran to its end while one of its outputs (the ``.rrd``) failed on the way
-OUTPUT_FAILED_EXIT = 1
-
-
 def run_session(session: LiveSession) -> None:
     """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero."""
     session.options.word = flag_of  # its notes name flags
@@ -67,7 +63,7 @@ def run_session(session: LiveSession) -> None:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
     if summary.failures:
-        raise typer.Exit(OUTPUT_FAILED_EXIT)
+        raise typer.Exit(1)  # it ran to its end, but an output (the .rrd) failed on the way
 
 
 def check_duration(duration: float | None) -> None:
@@ -133,9 +129,8 @@ def live_command(
     if ble and port is not None:
         raise UserError(f"--ble and --port {port}: a session reads one source; drop one of them")
     if ble:  # a clear line without bleak, before anything else
-        target = device.strip() if device and device.strip() else "auto"
-        layout = check_ble_layout(ble_layout)
-        source = source_for(BLE_SCHEME + target, backend=bleak_backend(), layout=layout)
+        target = (device or "").strip() or "auto"
+        source = source_for(BLE_SCHEME + target, layout=check_ble_layout(ble_layout), backend=bleak_backend())
     else:
         if ble_layout != "stock":
             raise UserError(f"--ble-layout {ble_layout} goes with --ble")
