@@ -79,11 +79,9 @@ class Capture:
         """A pandas DataFrame, one row per attitude frame, the columns of ``steval export`` (``t_fw_s``,
         ``acc_x_mg`` .. ``gyro_z_mdps``, ``q_w`` .. ``q_z``, ``thx_pitch_rad``, ``thy_roll_rad``, ...; with
         ``flight`` the flight-control columns too). ImportError with the install hint without pandas."""
-        pd = require_pandas()
+        pd = require_pandas()  # before the work: the install hint at once
         table = self.telemetry.attitude_table()
-        if flight:
-            table.update(self.telemetry.flight_columns())
-        return pd.DataFrame(table)
+        return pd.DataFrame(table | self.telemetry.flight_columns() if flight else table)
 
     def __repr__(self) -> str:
         return f"<Capture {self.path.name}: {len(self)} attitude frames, {len(self.status)} status frames>"
@@ -176,8 +174,7 @@ class Scores:
         return ev.format_table(self.results)
 
     def to_pandas(self):
-        pd = require_pandas()
-        return pd.DataFrame.from_dict(self.rmse_deg, orient="index")
+        return require_pandas().DataFrame.from_dict(self.rmse_deg, orient="index")
 
     def __repr__(self) -> str:
         return self.table()
