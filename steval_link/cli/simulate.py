@@ -75,10 +75,9 @@ _JSON_FIELDS = "estimator options settings dt_s estimator_dt_s iterations seed g
 
 def to_json(res: lab5.SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
-    eax, eay, eaz = res.final_angles_rad()
+    final = dict(zip(("eax", "eay", "eaz"), res.final_angles_rad()))
     if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
-        eax = eay = eaz = math.nan
-    final = {"eax": eax, "eay": eay, "eaz": eaz}
+        final = dict.fromkeys(final, math.nan)
     return {
         **{key: getattr(res, key) for key in _JSON_FIELDS},
         "final": {
