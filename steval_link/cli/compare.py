@@ -15,24 +15,8 @@ from steval_link.analysis.side_by_side import (
     format_side_by_side,
     side_by_side,
 )
+from steval_link.cli import checks, outputs
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import (
-    command_line,
-    estimator_names,
-    filter_settings,
-    flag_of,
-    require_attitude,
-    with_filter_options,
-)
-from steval_link.cli.outputs import (
-    ForceOption,
-    JsonReportOption,
-    atomic_output,
-    check_output,
-    check_outputs,
-    print_json,
-    print_warnings,
-)
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import check_view_flags, view_sinks, with_rerun_options
@@ -57,7 +41,7 @@ CompareEstimatorsOption = option(
 
 @app.command("compare")
 @with_rerun_options
-@with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
+@checks.with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
     captures: argument(
         list[Path] | None,
@@ -65,7 +49,7 @@ def compare_command(
         "flights side by side (see below).",
         metavar="CAPTURE",
     ) = None,
-    as_json: JsonReportOption = False,
+    as_json: outputs.JsonReportOption = False,
     plot: option(
         Path | None,
         metavar="OUT.png",
@@ -82,7 +66,7 @@ def compare_command(
         "gyro with the first capture's (motion; the lag found is printed).",
     ) = "time",
     label: option(list[str] | None, help="Two or more captures: the name of each flight, in order (repeat it).") = None,
-    force: ForceOption = False,
+    force: outputs.ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,
 ) -> None:
@@ -99,7 +83,7 @@ def compare_command(
     if captures and len(captures) > 1:
         given = [k for k, v in {"estimator": estimator, **filters}.items() if v is not None]
         if given:
-            flags = [("--correction/--no-correction" if k == "correction" else flag_of(k)) for k in given]
+            flags = [("--correction/--no-correction" if k == "correction" else checks.flag_of(k)) for k in given]
             verb = "applies" if len(flags) == 1 else "apply"
             raise UserError(
                 f"{', '.join(flags)} {verb} to one capture; with two or more captures the flights are compared with "
@@ -117,20 +101,20 @@ def compare_command(
 
 def _one_capture(captures, estimator, filters: dict, *, as_json: bool, plot, force: bool, text_map) -> None:
     """``steval compare [CAPTURE]``: the firmware against the replica and the estimators (text or JSON, figures)."""
-    changes, variant = filter_settings(filters)
+    changes, variant = checks.filter_settings(filters)
     # a missing optional package is a row of the report
-    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
+    names = checks.estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
     src = read_recording(captures[0] if captures else demo_capture_path())  # the input first, then the outputs
-    check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
+    outputs.check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(src, scaled(progress, 0.0, 0.4), text_map=text_map)
-        require_attitude(tel, "compare")
+        checks.require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
         fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png
         if plot is not None and no_fc_plot is None:
             fc_plot = plot.with_name(f"{plot.stem}-flight-control{plot.suffix or '.png'}")
-            check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
-        print_warnings(seen)  # the capture's damage (and a note in --json)
+            outputs.check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
+        outputs.print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")
         settings = None
         if changes:  # the status frames' settings (or the defaults) with the given ones replaced
@@ -143,10 +127,10 @@ def _one_capture(captures, estimator, filters: dict, *, as_json: bool, plot, for
             from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
 
             progress(0.9, f"plotting {plot.name}")
-            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+            with outputs.atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_comparison(tel, report, part)
                 if fc_plot is not None:
-                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                    with outputs.atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
     if fc_plot is not None:
@@ -161,7 +145,7 @@ def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, s
     if as_json:
         d = as_dict()
         d.update({key: str(path) for key, _, path in plots})
-        print_json(d)
+        outputs.print_json(d)
     else:
         print("\n".join(format_lines()))
         for _, label, path in plots:
@@ -195,7 +179,7 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
         inputs = tuple(captures)
-        check_outputs({"--plot": plot}, force=force, inputs=inputs)
+        outputs.check_outputs({"--plot": plot}, force=force, inputs=inputs)
         options = view_sinks(viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
         result = side_by_side(flights, align=align, labels=labels)
@@ -203,7 +187,7 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
             from steval_link.analysis.side_by_side import plot_side_by_side  # matplotlib: only for --plot
 
             progress(0.7, f"plotting {plot.name}")
-            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+            with outputs.atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_side_by_side(result, part)
     _print_report(
         as_json, result.as_dict, lambda: format_side_by_side(result), [] if plot is None else [("plot", "plot", plot)]
@@ -226,4 +210,4 @@ def _rerun_line(report, capture: Path) -> list[str]:
         found["dt"] = found.pop("dt_s")
     if "variant" in found:
         found["variant"] = str(found["variant"]).removeprefix("ST ")
-    return [f"to run the replica with them: {command_line(['steval', 'compare', str(capture)], found)}"]
+    return [f"to run the replica with them: {checks.command_line(['steval', 'compare', str(capture)], found)}"]

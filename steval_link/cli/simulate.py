@@ -11,19 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.analysis.report import json_number
+from steval_link.cli import checks
 from steval_link.cli.app import app, option
-from steval_link.cli.checks import (
-    CorrectionOption,
-    DtOption,
-    KiOption,
-    VariantOption,
-    check_count,
-    check_gain,
-    check_period,
-    check_throttle,
-    check_variant,
-    check_vector,
-)
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, write_atomic
 from steval_link.emulation import lab5
 from steval_link.errors import UserError
@@ -192,11 +181,11 @@ def simulate_command(
     ) = None,
     seed: option(int | None, help="Noise seed (default: random, printed).") = None,
     throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
-    ki: KiOption = None,
+    ki: checks.KiOption = None,
     kp: option(float | None, help="Proportional gain, replacing both 10 and 0.4.") = None,
-    correction: CorrectionOption = None,
-    variant: VariantOption = None,
-    dt: DtOption = None,
+    correction: checks.CorrectionOption = None,
+    variant: checks.VariantOption = None,
+    dt: checks.DtOption = None,
     estimators: option(
         list[str] | None,
         "--estimator",
@@ -226,20 +215,20 @@ def simulate_command(
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
 
     The UMaine Lab 5 AHRS simulator; prints the final eax (pitch), eay (roll), eaz (yaw)."""
-    check_count("--iterations", iterations, MAX_ITERATIONS)
-    check_vector("--gyro", gyro, "mdps")
-    check_vector("--acc", acc, "mg")
-    check_gain("--ki", ki)
-    check_gain("--kp", kp)
-    check_throttle("--throttle", throttle)
-    check_period("--dt", dt)
+    checks.check_count("--iterations", iterations, MAX_ITERATIONS)
+    checks.check_vector("--gyro", gyro, "mdps")
+    checks.check_vector("--acc", acc, "mg")
+    checks.check_gain("--ki", ki)
+    checks.check_gain("--kp", kp)
+    checks.check_throttle("--throttle", throttle)
+    checks.check_period("--dt", dt)
     estimator = _estimator(estimators)
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     check_outputs({"--csv": None if csv_out == "-" else csv_out, "--rrd": rrd, "--plot": plot}, force=force)
     gyro_sigma = _noise(gyro_noise, lab5.TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
     acc_sigma = _noise(acc_noise, lab5.TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
-    given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
+    given = dict(ki=ki, kp=kp, correction=correction, variant=checks.check_variant(variant))
     options = {k: v for k, v in given.items() if v is not None}
     inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
     res = _run("", **inputs, seed=seed, throttle=throttle, estimator=estimator, estimator_options=options, dt_s=dt)
@@ -333,10 +322,10 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
                 )
             v = _compare_value(name, text.strip(), _COMPARE_NAMES[name])
             if name == "throttle":
-                check_throttle("--compare-with throttle", v)
+                checks.check_throttle("--compare-with throttle", v)
                 thr = v
             elif name == "variant":
-                opts[name] = check_variant(v)
+                opts[name] = checks.check_variant(v)
             elif name == "estimator":
                 if not registry.is_known(v):
                     raise UserError(f"--compare-with estimator={v}: unknown estimator")
