@@ -103,11 +103,10 @@ def evaluate_command(
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
     check_outputs(outputs, force=force, inputs=inputs)  # and matplotlib for --plot: before the long run
-    only = split_list(",".join(estimators)) if estimators else None  # repeatable, each a comma-separated list
     with progress_bar("evaluate", quiet=as_json) as bar:
         results = ev.evaluate_data(
             data,
-            only,
+            split_list(",".join(estimators)) if estimators else None,  # repeatable, each a comma-separated list
             own_rate=own_rate,
             seed=seed,
             sensor_noise=sensor_noise,

@@ -27,8 +27,7 @@ def _spectrum(tel):
         sp = S.compute_spectra(tel)
     except UserError as exc:
         return None, {}, str(exc)
-    peaks = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k]) for k, (name, _, _) in enumerate(S.SIGNALS)}
-    return sp, peaks, None
+    return sp, {name: S.find_peaks(sp.freq_hz, sp.psd[:, k]) for k, (name, _, _) in enumerate(S.SIGNALS)}, None
 
 
 @app.command("report")
@@ -61,8 +60,7 @@ def report_command(
                 f"{src.path} is a BLE capture: steval report takes serial captures (steval compare "
                 "takes BLE captures side by side)."
             )
-    inputs = tuple(s.path for s in sources)
-    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=inputs)
+    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=tuple(s.path for s in sources))
     from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only here (start-up time)
 
     require_matplotlib()
