@@ -6,15 +6,9 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from steval_link.analysis import side_by_side as sbs
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
-from steval_link.analysis.side_by_side import (
-    ALIGN_MODES,
-    flight_of_ble,
-    flight_of_telemetry,
-    format_side_by_side,
-    side_by_side,
-)
 from steval_link.cli import checks, outputs
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.progress import progress_bar, scaled
@@ -158,17 +152,17 @@ def _load_flight(path: Path):
     tel = telemetry_of_recording(src)
     if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples
         replica = run_estimator("st-mahony", tel)[0] if tel.link.sensors else None
-        return flight_of_ble(path, tel, replica, src.warnings)
+        return sbs.flight_of_ble(path, tel, replica, src.warnings)
     if len(tel.attitude) == 0:
         raise UserError(
             f"{path} has no attitude frames to compare ({len(tel.status)} status frames, {len(tel.text)} text lines)."
         )
-    return flight_of_telemetry(path, tel, src.warnings)
+    return sbs.flight_of_telemetry(path, tel, src.warnings)
 
 
 def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, viewer):
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
-    if align not in ALIGN_MODES:
+    if align not in sbs.ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):
         raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
@@ -182,15 +176,13 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
         outputs.check_outputs({"--plot": plot}, force=force, inputs=inputs)
         options = view_sinks(viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
-        result = side_by_side(flights, align=align, labels=labels)
+        result = sbs.side_by_side(flights, align=align, labels=labels)
         if plot is not None:
-            from steval_link.analysis.side_by_side import plot_side_by_side  # matplotlib: only for --plot
-
             progress(0.7, f"plotting {plot.name}")
             with outputs.atomic_output(plot, option="--plot", keep_suffix=True) as part:
-                plot_side_by_side(result, part)
+                sbs.plot_side_by_side(result, part)
     _print_report(
-        as_json, result.as_dict, lambda: format_side_by_side(result), [] if plot is None else [("plot", "plot", plot)]
+        as_json, result.as_dict, lambda: sbs.format_side_by_side(result), [("plot", "plot", plot)] if plot else []
     )
     sys.stdout.flush()
     if options is not None:
