@@ -4,12 +4,8 @@
 
     cap = sl.open_capture("recordings/demo.stv")       # any capture, raw dump or text-mode log
     cap.attitude.t_fw_s, cap.attitude.thx_rad           # numpy arrays, units in the names (pitch = thx, about x)
-    cap.text_series.column("Drone_Pitch")               # a text log's printed series (names, units, t_s)
-    df = cap.to_pandas()                                # one row per attitude frame, the columns of steval export
     est = sl.run_estimator("ekf3", cap)                 # or "my_ekf.py:MyEkf(q_gyro=1e-5)", or MyEkf()
-    est.thx_rad, est.thy_rad, est.valid                 # one row per attitude frame
     scores = sl.evaluate("../shared/datasets/broad", ["st-mahony-flight", "vqf", MyEkf()])
-    scores.mean_rmse_deg                                # label → inclination RMSE against ground truth, degrees
 
 ``import steval_link`` stays cheap: this module loads on the first use of one of these names.
 """

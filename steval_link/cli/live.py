@@ -13,8 +13,7 @@ from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant, estimator_names, flag_of
 from steval_link.cli.outputs import check_output
-from steval_link.cli.replay import MapOption
-from steval_link.cli.replay import _text_map as read_map_option
+from steval_link.cli.replay import MapOption, read_map_option
 from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
