@@ -128,8 +128,7 @@ def evaluate_command(
                 typer.echo(f"{what} written to {out}")
         return
     report = ev.summary(results)
-    report["mode"] = "own-rate" if own_rate else "steval-pipeline"
-    report["sensor_noise"] = bool(sensor_noise and not own_rate)
+    report.update(mode="own-rate" if own_rate else "steval-pipeline", sensor_noise=bool(sensor_noise and not own_rate))
     report["seed"] = seed
     if max_seconds is not None:
         report["max_seconds"] = max_seconds
