@@ -118,11 +118,10 @@ def main(argv: list[str] | None = None) -> None:
     except _EXITS as exc:
         sys.exit(getattr(exc, "exit_code", getattr(exc, "code", 0)))
     except (*_ABORTS, KeyboardInterrupt):
-        print("steval: interrupted", file=sys.stderr)
-        sys.exit(_INTERRUPTED)
+        rv = _INTERRUPTED
     except BrokenPipeError:  # e.g. `steval replay --json | head`
         sys.stderr.close()
         sys.exit(1)
-    if rv == _INTERRUPTED:  # typer turns KeyboardInterrupt into this exit code without a word
+    if rv == _INTERRUPTED:  # Ctrl-C, or typer's exit code for it (which it gives without a word)
         print("steval: interrupted", file=sys.stderr)
     sys.exit(rv if isinstance(rv, int) else 0)
