@@ -4,12 +4,8 @@
 
     cap = sl.open_capture("recordings/demo.stv")       # any capture, raw dump or text-mode log
     cap.attitude.t_fw_s, cap.attitude.thx_rad           # numpy arrays, units in the names (pitch = thx, about x)
-    cap.text_series.column("Drone_Pitch")               # a text log's printed series (names, units, t_s)
-    df = cap.to_pandas()                                # one row per attitude frame, the columns of steval export
     est = sl.run_estimator("ekf3", cap)                 # or "my_ekf.py:MyEkf(q_gyro=1e-5)", or MyEkf()
-    est.thx_rad, est.thy_rad, est.valid                 # one row per attitude frame
     scores = sl.evaluate("../shared/datasets/broad", ["st-mahony-flight", "vqf", MyEkf()])
-    scores.mean_rmse_deg                                # label → inclination RMSE against ground truth, degrees
 
 ``import steval_link`` stays cheap: this module loads on the first use of one of these names.
 """
@@ -79,11 +75,9 @@ class Capture:
         """A pandas DataFrame, one row per attitude frame, the columns of ``steval export`` (``t_fw_s``,
         ``acc_x_mg`` .. ``gyro_z_mdps``, ``q_w`` .. ``q_z``, ``thx_pitch_rad``, ``thy_roll_rad``, ...; with
         ``flight`` the flight-control columns too). ImportError with the install hint without pandas."""
-        pd = require_pandas()
+        pd = require_pandas()  # before the work: the install hint at once
         table = self.telemetry.attitude_table()
-        if flight:
-            table.update(self.telemetry.flight_columns())
-        return pd.DataFrame(table)
+        return pd.DataFrame(table | self.telemetry.flight_columns() if flight else table)
 
     def __repr__(self) -> str:
         return f"<Capture {self.path.name}: {len(self)} attitude frames, {len(self.status)} status frames>"
@@ -176,8 +170,7 @@ class Scores:
         return ev.format_table(self.results)
 
     def to_pandas(self):
-        pd = require_pandas()
-        return pd.DataFrame.from_dict(self.rmse_deg, orient="index")
+        return require_pandas().DataFrame.from_dict(self.rmse_deg, orient="index")
 
     def __repr__(self) -> str:
         return self.table()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import inspect
 import re
@@ -18,32 +19,12 @@ from steval_link.stop_signals import interrupt, on_stop_signals
 __all__ = ["main", "register"]
 
 #: the sub-command modules by the command words they register (importing a module registers its commands)
-COMMANDS = {
-    "ble": "ble",
-    "param": "command",
-    "command": "command",
-    "compare": "compare",
-    "conformance": "conformance",
-    "data": "data",
-    "emulate": "emulate",
-    "estimator": "estimator",
-    "evaluate": "evaluate",
-    "export": "export",
-    "live": "live",
-    "record": "live",
-    "ports": "ports",
-    "preflight": "preflight",
-    "replay": "replay",
-    "report": "report",
-    "simulate": "simulate",
-    "spectrum": "spectrum",
-    "synth": "synth",
-}
+_MODULES = "ble command compare conformance data emulate estimator evaluate export live ports preflight replay"
+COMMANDS = {w: w for w in f"{_MODULES} report simulate spectrum synth".split()} | {"param": "command", "record": "live"}
 
 
 def register(args: list[str] | None = None) -> typer.Typer:
-    """The typer app with the sub-command that ``args`` start with registered (only its module is imported: a
-    command starts without the others' imports), or with every sub-command."""
+    """The typer app with the sub-command that ``args`` start with registered (only its module imported), or all."""
     word = args[0] if args else None
     for module in [COMMANDS[word]] if word in COMMANDS else dict.fromkeys(COMMANDS.values()):
         importlib.import_module(f"steval_link.cli.{module}")
@@ -52,23 +33,17 @@ def register(args: list[str] | None = None) -> typer.Typer:
 
 def _exception_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
     """(usage errors, exits, aborts) of typer and of the click it runs on (its own vendored copy in typer ≥ 0.25)."""
-    usage: list[type] = []
-    exits: list[type] = [typer.Exit]
-    aborts: list[type] = [typer.Abort]
-    try:
+    usage, exits, aborts = [], [typer.Exit], [typer.Abort]
+    with contextlib.suppress(ImportError):
         import click
 
         usage.append(click.ClickException)
         exits.append(click.exceptions.Exit)
         aborts.append(click.exceptions.Abort)
-    except ImportError:
-        pass
-    try:
+    with contextlib.suppress(ImportError):
         from typer._click import exceptions as vendored  # typer's vendored click
 
         usage.append(vendored.ClickException)
-    except ImportError:
-        pass
     return tuple(usage), tuple(exits), tuple(aborts)
 
 
@@ -82,10 +57,8 @@ HELP_TABLE_MIN_COLUMNS = 100
 
 
 def _tidy_help(command, plain: bool) -> None:
-    """``--help`` of every sub-command: boolean flags (the help option too) show no ``<bool>``, and a paragraph's
-    lines are one line that the terminal wraps (typer keeps the docstring's line breaks); list items keep theirs.
-    ``plain``: a command's options in click's layout (each with its help beside it, wrapped), without rich's
-    markup escapes; groups keep typer's panels (their lists of commands read well at any width)."""
+    """``--help`` of every sub-command: flags show no ``<bool>``; a paragraph is one line the terminal wraps.
+    ``plain``: a command's options in click's layout, without rich's markup escapes (groups keep typer's panels)."""
     subs = getattr(command, "commands", {})
     plain_here = plain and not subs
     help_option = command.get_help_option(command.context_class(command, help_option_names=HELP_OPTION_NAMES))
@@ -128,8 +101,7 @@ def main(argv: list[str] | None = None) -> None:
         with on_stop_signals(interrupt, sigint=False):
             rv = command.main(args=argv, prog_name="steval", standalone_mode=False)
     except UserError as exc:
-        details = getattr(exc, "details", "")  # a user's estimator failed: their own traceback, trimmed to their code
-        if details:
+        if details := getattr(exc, "details", ""):  # a user's estimator failed: their traceback, trimmed to their code
             print(details, file=sys.stderr)
         from steval_link.cli.checks import user_message  # reason: imports the estimators (only on an error)
 
@@ -146,11 +118,10 @@ def main(argv: list[str] | None = None) -> None:
     except _EXITS as exc:
         sys.exit(getattr(exc, "exit_code", getattr(exc, "code", 0)))
     except (*_ABORTS, KeyboardInterrupt):
-        print("steval: interrupted", file=sys.stderr)
-        sys.exit(_INTERRUPTED)
+        rv = _INTERRUPTED
     except BrokenPipeError:  # e.g. `steval replay --json | head`
         sys.stderr.close()
         sys.exit(1)
-    if rv == _INTERRUPTED:  # typer turns KeyboardInterrupt into this exit code without a word
+    if rv == _INTERRUPTED:  # Ctrl-C, or typer's exit code for it (which it gives without a word)
         print("steval: interrupted", file=sys.stderr)
     sys.exit(rv if isinstance(rv, int) else 0)

@@ -8,7 +8,6 @@ import typer
 
 from steval_link import __version__
 
-#: ``-h`` as well as ``--help``, on every command
 HELP_OPTION_NAMES = ["-h", "--help"]
 
 

@@ -57,9 +57,8 @@ def scan_command(
     devices = scan_devices(bleak_backend(), timeout)
     lines = format_devices(devices, show_all)
     if not lines:
-        others = len(devices)
         print(
-            f"steval: no drone advertising {DEVICE_NAME_PREFIX}… found in {timeout:g} s ({others} other BLE "
+            f"steval: no drone advertising {DEVICE_NAME_PREFIX}… found in {timeout:g} s ({len(devices)} other BLE "
             "device(s); --all lists them). Is the drone on, and not connected to a phone?",
             file=sys.stderr,
         )

@@ -66,10 +66,8 @@ def param_get(
     reply = send(Command(P.CMD_REQUEST_STATUS))
     if reply.status is None:
         raise UserError("the drone acknowledged the status request but its status frame did not arrive; try again")
-    if key is None:
-        typer.echo(f"{describe_settings(reply.status)} (after step {int(reply.status.step)})")
-    else:
-        typer.echo(f"{key} = {param_of_status(reply.status, key)} (after step {int(reply.status.step)})")
+    what = describe_settings(reply.status) if key is None else f"{key} = {param_of_status(reply.status, key)}"
+    typer.echo(f"{what} (after step {int(reply.status.step)})")
 
 
 @param_app.command("set")

@@ -6,33 +6,11 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from steval_link.analysis import side_by_side as sbs
 from steval_link.analysis.compare import compare_capture, format_report
 from steval_link.analysis.flight_control import no_flight_figure_reason
-from steval_link.analysis.side_by_side import (
-    ALIGN_MODES,
-    flight_of_ble,
-    flight_of_telemetry,
-    format_side_by_side,
-    side_by_side,
-)
+from steval_link.cli import checks, outputs
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import (
-    command_line,
-    estimator_names,
-    filter_settings,
-    flag_of,
-    require_attitude,
-    with_filter_options,
-)
-from steval_link.cli.outputs import (
-    ForceOption,
-    JsonReportOption,
-    atomic_output,
-    check_output,
-    check_outputs,
-    print_json,
-    print_warnings,
-)
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.cli.replay import MapOption, load_replay
 from steval_link.cli.viewer_options import check_view_flags, view_sinks, with_rerun_options
@@ -57,7 +35,7 @@ CompareEstimatorsOption = option(
 
 @app.command("compare")
 @with_rerun_options
-@with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
+@checks.with_filter_options("ki kp_ground kp_flight dt min_thr correction variant")
 def compare_command(
     captures: argument(
         list[Path] | None,
@@ -65,7 +43,7 @@ def compare_command(
         "flights side by side (see below).",
         metavar="CAPTURE",
     ) = None,
-    as_json: JsonReportOption = False,
+    as_json: outputs.JsonReportOption = False,
     plot: option(
         Path | None,
         metavar="OUT.png",
@@ -82,7 +60,7 @@ def compare_command(
         "gyro with the first capture's (motion; the lag found is printed).",
     ) = "time",
     label: option(list[str] | None, help="Two or more captures: the name of each flight, in order (repeat it).") = None,
-    force: ForceOption = False,
+    force: outputs.ForceOption = False,
     text_map: MapOption = None,
     rerun: SinkOptions = None,
 ) -> None:
@@ -99,7 +77,7 @@ def compare_command(
     if captures and len(captures) > 1:
         given = [k for k, v in {"estimator": estimator, **filters}.items() if v is not None]
         if given:
-            flags = [("--correction/--no-correction" if k == "correction" else flag_of(k)) for k in given]
+            flags = [("--correction/--no-correction" if k == "correction" else checks.flag_of(k)) for k in given]
             verb = "applies" if len(flags) == 1 else "apply"
             raise UserError(
                 f"{', '.join(flags)} {verb} to one capture; with two or more captures the flights are compared with "
@@ -112,35 +90,25 @@ def compare_command(
             "--align, --label, --rrd, --spawn, --serve and --connect are for two or more captures "
             "(one capture in Rerun: steval replay CAPTURE --spawn)."
         )
-    changes, variant = filter_settings(filters)
-    _one_capture(
-        captures[0] if captures else None,
-        estimator,
-        changes,
-        variant,
-        as_json=as_json,
-        plot=plot,
-        force=force,
-        text_map=text_map,
-    )
+    _one_capture(captures, estimator, filters, as_json=as_json, plot=plot, force=force, text_map=text_map)
 
 
-def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, plot, force: bool, text_map) -> None:
-    """``steval compare CAPTURE``: the firmware against the replica and the estimators (text or JSON, figures)."""
+def _one_capture(captures, estimator, filters: dict, *, as_json: bool, plot, force: bool, text_map) -> None:
+    """``steval compare [CAPTURE]``: the firmware against the replica and the estimators (text or JSON, figures)."""
+    changes, variant = checks.filter_settings(filters)
     # a missing optional package is a row of the report
-    names = estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
-    src = read_recording(demo_capture_path() if capture is None else capture)  # the input first, then the outputs
-    check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
+    names = checks.estimator_names(estimator, registry.COMPARE_DEFAULT, require_installed=False)
+    src = read_recording(captures[0] if captures else demo_capture_path())  # the input first, then the outputs
+    outputs.check_outputs({"--plot": plot}, force=force, inputs=(src.path,))
     with progress_bar("compare", quiet=as_json) as progress:
         tel, seen = load_replay(src, scaled(progress, 0.0, 0.4), text_map=text_map)
-        require_attitude(tel, "compare")
+        checks.require_attitude(tel, "compare")
         no_fc_plot = no_flight_figure_reason(tel.fc)
         fc_plot = None  # the flight-control figure, where the drone was armed: OUT-flight-control.png
         if plot is not None and no_fc_plot is None:
             fc_plot = plot.with_name(f"{plot.stem}-flight-control{plot.suffix or '.png'}")
-        if fc_plot is not None:
-            check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
-        print_warnings(seen)  # the capture's damage (and a note in --json)
+            outputs.check_output(fc_plot, option="--plot", force=force, inputs=(src.path,))
+        outputs.print_warnings(seen)  # the capture's damage (and a note in --json)
         progress(0.4, f"replica and {', '.join(names)}")
         settings = None
         if changes:  # the status frames' settings (or the defaults) with the given ones replaced
@@ -153,10 +121,10 @@ def _one_capture(capture, estimator, changes: dict, variant, *, as_json: bool, p
             from steval_link.analysis.plots import plot_comparison, plot_flight_control  # matplotlib: only for --plot
 
             progress(0.9, f"plotting {plot.name}")
-            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
+            with outputs.atomic_output(plot, option="--plot", keep_suffix=True) as part:
                 plot_comparison(tel, report, part)
                 if fc_plot is not None:
-                    with atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
+                    with outputs.atomic_output(fc_plot, option="--plot", keep_suffix=True) as fc_part:
                         plot_flight_control(tel, fc_part)
     plots = [] if plot is None else [("plot", "plot", plot)]
     if fc_plot is not None:
@@ -171,7 +139,7 @@ def _print_report(as_json: bool, as_dict, format_lines, plots: list[tuple[str, s
     if as_json:
         d = as_dict()
         d.update({key: str(path) for key, _, path in plots})
-        print_json(d)
+        outputs.print_json(d)
     else:
         print("\n".join(format_lines()))
         for _, label, path in plots:
@@ -184,17 +152,17 @@ def _load_flight(path: Path):
     tel = telemetry_of_recording(src)
     if tel.link is not None:  # BLE: no firmware angles, the replica's on the samples
         replica = run_estimator("st-mahony", tel)[0] if tel.link.sensors else None
-        return flight_of_ble(path, tel, replica, src.warnings)
+        return sbs.flight_of_ble(path, tel, replica, src.warnings)
     if len(tel.attitude) == 0:
         raise UserError(
             f"{path} has no attitude frames to compare ({len(tel.status)} status frames, {len(tel.text)} text lines)."
         )
-    return flight_of_telemetry(path, tel, src.warnings)
+    return sbs.flight_of_telemetry(path, tel, src.warnings)
 
 
 def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, force: bool, align: str, labels, viewer):
     """``steval compare A B ...``: the flights side by side (text or JSON, the figure, the Rerun recording)."""
-    if align not in ALIGN_MODES:
+    if align not in sbs.ALIGN_MODES:
         raise UserError(f"--align must be time or motion, got {align!r}.")
     if labels and len(labels) != len(captures):
         raise UserError(f"{len(labels)} --label for {len(captures)} captures: give one per capture, in order.")
@@ -205,18 +173,16 @@ def _side_by_side(captures: list[Path], *, as_json: bool, plot: Path | None, for
             progress(0.6 * i / len(captures), f"reading {path.name}")
             flights.append(_load_flight(path))
         inputs = tuple(captures)
-        check_outputs({"--plot": plot}, force=force, inputs=inputs)
+        outputs.check_outputs({"--plot": plot}, force=force, inputs=inputs)
         options = view_sinks(viewer, force=force, inputs=inputs)  # before the work: a dead URL, a busy port
         progress(0.6, "aligning")
-        result = side_by_side(flights, align=align, labels=labels)
+        result = sbs.side_by_side(flights, align=align, labels=labels)
         if plot is not None:
-            from steval_link.analysis.side_by_side import plot_side_by_side  # matplotlib: only for --plot
-
             progress(0.7, f"plotting {plot.name}")
-            with atomic_output(plot, option="--plot", keep_suffix=True) as part:
-                plot_side_by_side(result, part)
+            with outputs.atomic_output(plot, option="--plot", keep_suffix=True) as part:
+                sbs.plot_side_by_side(result, part)
     _print_report(
-        as_json, result.as_dict, lambda: format_side_by_side(result), [] if plot is None else [("plot", "plot", plot)]
+        as_json, result.as_dict, lambda: sbs.format_side_by_side(result), [("plot", "plot", plot)] if plot else []
     )
     sys.stdout.flush()
     if options is not None:
@@ -236,4 +202,4 @@ def _rerun_line(report, capture: Path) -> list[str]:
         found["dt"] = found.pop("dt_s")
     if "variant" in found:
         found["variant"] = str(found["variant"]).removeprefix("ST ")
-    return [f"to run the replica with them: {command_line(['steval', 'compare', str(capture)], found)}"]
+    return [f"to run the replica with them: {checks.command_line(['steval', 'compare', str(capture)], found)}"]

@@ -16,12 +16,6 @@ SHARED_BROAD = Path(__file__).resolve().parents[2].parent / "shared" / "datasets
 data_app = sub_app("data", "Data sets on demand: BROAD trials with optical ground truth.")
 
 
-def _require_data_extra() -> None:
-    missing = [module for module in ("pooch", "h5py", "platformdirs") if importlib.util.find_spec(module) is None]
-    if missing:
-        raise UserError(f'steval data needs {", ".join(missing)}: pip install "steval-link[data]"')
-
-
 _BROAD_HELP = (
     "Download BROAD trials (CC BY 4.0) from the dataset's public repository, check each against its recorded hash, "
     "convert it to the .npz that steval evaluate reads, and say where they are. Trials already there are kept."
@@ -44,7 +38,9 @@ def broad_command(
 ) -> None:
     from steval_link.emulation import broad_fetch as bf  # reason: start-up time
 
-    _require_data_extra()
+    missing = [module for module in ("pooch", "h5py", "platformdirs") if importlib.util.find_spec(module) is None]
+    if missing:
+        raise UserError(f'steval data needs {", ".join(missing)}: pip install "steval-link[data]"')
     names = bf.resolve_trials(list(trials or []))
     folder = directory if directory is not None else bf.cache_dir()
     for name in names:
@@ -67,11 +63,3 @@ def find_broad_data() -> Path | None:
         if folder is not None and bf.cached_trials(folder):
             return folder
     return None
-
-
-def default_broad_data() -> list[Path]:
-    """The trials ``steval evaluate`` scores without DATA; none: a UserError saying how to get them."""
-    found = find_broad_data()
-    if found is not None:
-        return [found]
-    raise UserError("no BROAD trials in the data cache: download them with `steval data broad`, or give DATA")

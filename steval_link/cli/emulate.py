@@ -6,16 +6,8 @@ import sys
 from pathlib import Path
 
 from steval_link.analysis.report import estimator_line, estimator_summary
+from steval_link.cli import checks
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.checks import (
-    ThrottleFormerOption,
-    ThrottleScheduleOption,
-    VariantOption,
-    check_variant,
-    command_line,
-    estimator_names,
-    flag_of,
-)
 from steval_link.cli.live import check_duration, session_outputs
 from steval_link.cli.outputs import check_input, check_output
 from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
@@ -67,8 +59,8 @@ def emulate_command(
         "2.985 s).",
     ) = None,
     seed: option(int, help="Seed of the motion and the sensor noise (same seed, same bytes).") = 0,
-    throttle_schedule: ThrottleScheduleOption = None,
-    throttle: ThrottleFormerOption = None,
+    throttle_schedule: checks.ThrottleScheduleOption = None,
+    throttle: checks.ThrottleFormerOption = None,
     mount: option(
         str | None,
         help="Sensor fault: the board mounted turned on the frame (turned-90: x and y swapped; turned-180: x and y "
@@ -102,7 +94,7 @@ def emulate_command(
     ) = False,
     ble_connect_at: _BleConnectAt = 0.5,
     tick_start_ms: _TickStartMs = 0,
-    variant: VariantOption = None,
+    variant: checks.VariantOption = None,
     rerun: SinkOptions = None,
 ) -> None:
     """Run a real firmware ELF on an emulated STEVAL-FCU001V1 (STM32F401 + sensors), no drone needed.
@@ -115,7 +107,7 @@ def emulate_command(
     The firmware's attitude is read by symbol every AHRS step (capture chunks S): a build without the patch shows
     it too. The ST release's filter is recognised from the ELF's code (or --variant) and named.
     """
-    variant = check_variant(variant)
+    variant = checks.check_variant(variant)
     for path, what in ((elf, "firmware ELF"), (broad, "BROAD trial"), (commands, "command script")):
         if path is not None:
             check_input(path, what=what)  # the inputs first
@@ -134,7 +126,7 @@ def emulate_command(
         return
     check_view_flags(rerun, no_view=no_view)
     emu_options.mount = mount  # the USART1 path models the mount fault; the BLE recording does not take it
-    emu_options.command_line = command_line(
+    emu_options.command_line = checks.command_line(
         ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}
     )
     source = source_for(
@@ -145,7 +137,9 @@ def emulate_command(
         variant=variant,
         variant_from="--variant",
     )
-    options = LiveOptions(estimators=estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=flag_of)
+    options = LiveOptions(
+        estimators=checks.estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=checks.flag_of
+    )
     # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
     check = session_outputs(options, out, rerun, view=not no_view)
     summary = LiveSession(options, source, viewer_factory=ViewerLogger, check_outputs=check).run()
@@ -192,7 +186,7 @@ def _emulate_ble(emu_options: EmulationOptions, out, connect_s: float, tick_star
         path = default_capture_path()
         path.parent.mkdir(parents=True, exist_ok=True)
     ble = {"ble": True, "ble_connect_at": connect_s, "tick_start_ms": tick_start_ms or None}
-    command = command_line(["steval", "emulate", str(emu_options.elf)], {**emu_options.settings(), **ble})
+    command = checks.command_line(["steval", "emulate", str(emu_options.elf)], {**emu_options.settings(), **ble})
     rec = record_ble(emu_options, path, connect_s=connect_s, tick_start_ms=tick_start_ms, command=command)
     print("\n".join(rec.lines()))
     sys.stdout.flush()

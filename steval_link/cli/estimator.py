@@ -29,8 +29,7 @@ _CLASS_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 def starter_source(class_name: str = STARTER_CLASS) -> str:
     """The starter's Python source (``steval_link/estimators/starter_ekf.py``) with its class named ``class_name``."""
     path = Path(__file__).resolve().parents[1] / "estimators" / "starter_ekf.py"
-    text = path.read_text(encoding="utf-8")
-    return re.sub(rf"\b{STARTER_CLASS}\b", class_name, text) if class_name != STARTER_CLASS else text
+    return re.sub(rf"\b{STARTER_CLASS}\b", class_name, path.read_text(encoding="utf-8"))
 
 
 @estimator_app.command("new")

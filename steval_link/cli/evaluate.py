@@ -9,10 +9,11 @@ import typer
 
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.checks import VariantOption, check_variant
-from steval_link.cli.data import default_broad_data
+from steval_link.cli.data import find_broad_data
 from steval_link.cli.outputs import ForceOption, JsonReportOption, atomic_output, check_outputs
 from steval_link.cli.progress import progress_bar
 from steval_link.emulation import broad
+from steval_link.errors import UserError
 from steval_link.estimators.plugins import split_list
 
 _HELP = (
@@ -96,15 +97,16 @@ def evaluate_command(
     from steval_link.analysis import evaluate as ev  # imported when run: a quick start for other commands
 
     variant = check_variant(variant)  # the release's filter of the replica on a --firmware's inputs
-    data = data or default_broad_data()
+    if not data and (found := find_broad_data()) is None:
+        raise UserError("no BROAD trials in the data cache: download them with `steval data broad`, or give DATA")
+    data = data or [found]
     inputs = (*broad.trial_paths(data), *(firmware or []))
     outputs = {"--plot": plot, "--csv": csv_out, "--markdown": markdown_out}
     check_outputs(outputs, force=force, inputs=inputs)  # and matplotlib for --plot: before the long run
-    only = split_list(",".join(estimators)) if estimators else None  # repeatable, each a comma-separated list
     with progress_bar("evaluate", quiet=as_json) as bar:
         results = ev.evaluate_data(
             data,
-            only,
+            split_list(",".join(estimators)) if estimators else None,  # repeatable, each a comma-separated list
             own_rate=own_rate,
             seed=seed,
             sensor_noise=sensor_noise,
@@ -126,8 +128,7 @@ def evaluate_command(
                 typer.echo(f"{what} written to {out}")
         return
     report = ev.summary(results)
-    report["mode"] = "own-rate" if own_rate else "steval-pipeline"
-    report["sensor_noise"] = bool(sensor_noise and not own_rate)
+    report.update(mode="own-rate" if own_rate else "steval-pipeline", sensor_noise=bool(sensor_noise and not own_rate))
     report["seed"] = seed
     if max_seconds is not None:
         report["max_seconds"] = max_seconds

@@ -146,15 +146,14 @@ def _export_serial(src, outputs: dict, degrees: bool, progress) -> None:
     if records and (csv is not None or parquet is not None):  # a text log: a row per record
         rows = f"{len(tel.text_series)} text records"
         _write_table(tel.text_series.table(), csv, parquet, progress, rows, shortest=True)
-    elif tel is not None and (csv is not None or parquet is not None):
-        table = tel.attitude_table()
-        table.update(tel.flight_columns())
-        if degrees:
-            table = in_degrees(table)
-        _write_table(table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows")
-    if tel is not None and mat is not None:
+    elif csv is not None or parquet is not None:
+        table = tel.attitude_table() | tel.flight_columns()
+        _write_table(
+            in_degrees(table) if degrees else table, csv, parquet, progress, f"{len(tel.attitude)} attitude rows"
+        )
+    if mat is not None:
         _export_mat(tel, mat, degrees, progress)
-    if tel is not None and mcap is not None:
+    if mcap is not None:
         _export_mcap(tel, mcap, progress)
 
 

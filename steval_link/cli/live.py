@@ -13,8 +13,7 @@ from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant, estimator_names, flag_of
 from steval_link.cli.outputs import check_output
-from steval_link.cli.replay import MapOption
-from steval_link.cli.replay import _text_map as read_map_option
+from steval_link.cli.replay import MapOption, read_map_option
 from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
@@ -51,10 +50,6 @@ def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions |
     return check
 
 
-#: exit code of a session that ran to its end while one of its outputs (the ``.rrd``) failed on the way
-OUTPUT_FAILED_EXIT = 1
-
-
 def run_session(session: LiveSession) -> None:
     """Run ``session`` and print its summary; an output that failed on the way makes the exit code non-zero."""
     session.options.word = flag_of  # its notes name flags
@@ -67,7 +62,7 @@ def run_session(session: LiveSession) -> None:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
     if summary.failures:
-        raise typer.Exit(OUTPUT_FAILED_EXIT)
+        raise typer.Exit(1)  # it ran to its end, but an output (the .rrd) failed on the way
 
 
 def check_duration(duration: float | None) -> None:
@@ -133,9 +128,8 @@ def live_command(
     if ble and port is not None:
         raise UserError(f"--ble and --port {port}: a session reads one source; drop one of them")
     if ble:  # a clear line without bleak, before anything else
-        target = device.strip() if device and device.strip() else "auto"
-        layout = check_ble_layout(ble_layout)
-        source = source_for(BLE_SCHEME + target, backend=bleak_backend(), layout=layout)
+        target = (device or "").strip() or "auto"
+        source = source_for(BLE_SCHEME + target, layout=check_ble_layout(ble_layout), backend=bleak_backend())
     else:
         if ble_layout != "stock":
             raise UserError(f"--ble-layout {ble_layout} goes with --ble")

@@ -130,11 +130,6 @@ def check_input(path: str | os.PathLike, *, what: str = "file") -> Path:
     return p
 
 
-def output_error(option: str, path: str | os.PathLike, exc: BaseException) -> UserError:
-    """One sentence for a writer that failed on ``path`` (disk full, folder removed, ...)."""
-    return UserError(f"{option} {path}: cannot write it ({_why(exc)}); nothing was written there".lstrip())
-
-
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = False) -> Iterator[Path]:
     """Yield the partial path to write ``path`` to: renamed into place on a normal exit, removed on any exception."""
@@ -147,8 +142,10 @@ def atomic_output(path: str | os.PathLike, *, option: str, keep_suffix: bool = F
     except BaseException as exc:
         with contextlib.suppress(OSError):
             partial.unlink()
-        if isinstance(exc, (OSError, RuntimeError)):
-            raise output_error(option, final, exc) from None
+        if isinstance(exc, (OSError, RuntimeError)):  # a writer that failed (disk full, folder removed, ...)
+            raise UserError(
+                f"{option} {final}: cannot write it ({_why(exc)}); nothing was written there".lstrip()
+            ) from None
         raise
 
 

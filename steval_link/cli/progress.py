@@ -15,10 +15,6 @@ Progress = Callable[[float, str], None]
 SHOW_AFTER_S = 0.5
 
 
-def _nothing(fraction: float, stage: str = "") -> None:
-    return None
-
-
 def scaled(progress: Progress, start: float, end: float) -> Progress:
     """``progress`` for one part of a job: its 0..1 maps to ``start``..``end`` of the whole."""
     return lambda fraction, stage="": progress(start + (end - start) * min(max(fraction, 0.0), 1.0), stage)
@@ -29,7 +25,7 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[Progress]
     """A progress callback drawing a bar on stderr while the block runs (a no-op when ``quiet`` or not a tty)."""
     stream = sys.stderr
     if quiet or not getattr(stream, "isatty", lambda: False)():
-        yield _nothing
+        yield lambda fraction, stage="": None
         return
     from rich.console import Console
     from rich.progress import BarColumn, SpinnerColumn, TaskProgressColumn, TextColumn, TimeElapsedColumn

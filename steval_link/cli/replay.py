@@ -47,7 +47,7 @@ def load_replay(src, progress: Progress, *, text_map: list[str] | None = None, b
     return tel, list(src.warnings)
 
 
-def _text_map(items: list[str] | None) -> dict | None:
+def read_map_option(items: list[str] | None) -> dict | None:
     """The ``--map`` items read (UserError naming the flag when one does not read)."""
     try:
         return parse_map(items) or None

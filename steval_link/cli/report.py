@@ -27,8 +27,7 @@ def _spectrum(tel):
         sp = S.compute_spectra(tel)
     except UserError as exc:
         return None, {}, str(exc)
-    peaks = {name: S.find_peaks(sp.freq_hz, sp.psd[:, k]) for k, (name, _, _) in enumerate(S.SIGNALS)}
-    return sp, peaks, None
+    return sp, {name: S.find_peaks(sp.freq_hz, sp.psd[:, k]) for k, (name, _, _) in enumerate(S.SIGNALS)}, None
 
 
 @app.command("report")
@@ -61,8 +60,7 @@ def report_command(
                 f"{src.path} is a BLE capture: steval report takes serial captures (steval compare "
                 "takes BLE captures side by side)."
             )
-    inputs = tuple(s.path for s in sources)
-    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=inputs)
+    check_outputs({"--out": out, "--markdown": markdown}, force=force, inputs=tuple(s.path for s in sources))
     from steval_link.analysis.plots import require_matplotlib  # matplotlib loads only here (start-up time)
 
     require_matplotlib()
@@ -81,20 +79,15 @@ def report_command(
                 flights.append(flight_of_telemetry(path, tel, warnings))
         side = H.side_by_side_section(side_by_side(flights)) if len(flights) > 1 else None
         rep = H.report_of(title or "steval report: " + ", ".join(c.name for c in captures), per, side)
-        progress(0.95, "writing")
-        _write(rep, out, markdown)
+        progress(0.95, "writing")  # the HTML page and/or the Markdown with its images, each whole or not at all
+        if out is not None:
+            with atomic_output(out, option="--out", keep_suffix=True) as part:
+                part.write_text(H.render_html(rep), encoding="utf-8")
+        if markdown is not None:
+            images = markdown.with_name(f"{markdown.stem}_images")
+            with atomic_output(markdown, option="--markdown", keep_suffix=True) as part:
+                part.write_text(H.render_markdown(rep, images, images.name), encoding="utf-8")
     for label, path in (("report", out), ("markdown", markdown)):
         if path is not None:
             print(f"{label}: {path}")
     sys.stdout.flush()
-
-
-def _write(rep, out: Path | None, markdown: Path | None) -> None:
-    """The HTML page and/or the Markdown with its images (each written whole or not at all)."""
-    if out is not None:
-        with atomic_output(out, option="--out", keep_suffix=True) as part:
-            part.write_text(H.render_html(rep), encoding="utf-8")
-    if markdown is not None:
-        images = markdown.with_name(f"{markdown.stem}_images")
-        with atomic_output(markdown, option="--markdown", keep_suffix=True) as part:
-            part.write_text(H.render_markdown(rep, images, images.name), encoding="utf-8")

@@ -11,19 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from steval_link.analysis.report import json_number
+from steval_link.cli import checks
 from steval_link.cli.app import app, option
-from steval_link.cli.checks import (
-    CorrectionOption,
-    DtOption,
-    KiOption,
-    VariantOption,
-    check_count,
-    check_gain,
-    check_period,
-    check_throttle,
-    check_variant,
-    check_vector,
-)
 from steval_link.cli.outputs import ForceOption, atomic_output, check_outputs, write_atomic
 from steval_link.emulation import lab5
 from steval_link.errors import UserError
@@ -44,13 +33,9 @@ _OFF_WORDS = {"off", "no", "false", "none"}
 
 def _noise(text: str | None, typical: float, what: str, unit: str, on: bool = False) -> float:
     """The noise σ of ``--{what}-noise`` (``on`` or a number); ``on`` (``--noise``): the typical one when not given."""
-    if text is None:
-        return typical if on else 0.0
-    word = text.strip().lower()
-    if word in _ON_WORDS:
-        return typical
-    if word in _OFF_WORDS:
-        return 0.0
+    word = ("on" if on else "off") if text is None else text.strip().lower()
+    if word in _ON_WORDS | _OFF_WORDS:
+        return typical if word in _ON_WORDS else 0.0
     try:
         value = float(word)
     except ValueError:
@@ -79,10 +64,9 @@ _JSON_FIELDS = "estimator options settings dt_s estimator_dt_s iterations seed g
 
 def to_json(res: lab5.SimulationResult) -> dict:
     """The run as a JSON-ready dict; float32 values are exact (``np.float32(value)`` restores the bits)."""
-    eax, eay, eaz = res.final_angles_rad()
+    final = dict(zip(("eax", "eay", "eaz"), res.final_angles_rad()))
     if not (res.iterations and res.valid[-1]):  # no valid last step: null, as the text says n/a
-        eax = eay = eaz = math.nan
-    final = {"eax": eax, "eay": eay, "eaz": eaz}
+        final = dict.fromkeys(final, math.nan)
     return {
         **{key: getattr(res, key) for key in _JSON_FIELDS},
         "final": {
@@ -96,9 +80,7 @@ def to_json(res: lab5.SimulationResult) -> dict:
                 "gyro_mdps": [json_number(v) for v in res.gyro_mdps[k]],
                 "thr": int(res.thr[k]),
                 "q_wxyz": [json_number(v) for v in res.q_wxyz[k]],
-                "eax_rad": json_number(res.eax_rad[k]),
-                "eay_rad": json_number(res.eay_rad[k]),
-                "eaz_rad": json_number(res.eaz_rad[k]),
+                **{f"{ea}_rad": json_number(getattr(res, f"{ea}_rad")[k]) for ea in ("eax", "eay", "eaz")},
                 "valid": bool(res.valid[k]),
             }
             for k in range(res.iterations)
@@ -153,8 +135,7 @@ def summary(res: lab5.SimulationResult, gyro, acc, throttle: int) -> str:
 
 
 def _zero_acc_notes(res: lab5.SimulationResult) -> list[str]:
-    """What a zero accelerometer input (the Lab 5 baseline) does to the estimator: the firmware's error terms are
-    0, so its correction and KI do nothing; the EKFs wait for a first accelerometer sample to set their tilt."""
+    """What a zero accelerometer input (the Lab 5 baseline) does to the estimator, as notes."""
     zero = ~np.asarray(res.acc_mg, dtype=np.float64).any(axis=1)
     if not zero.any():
         return []
@@ -200,11 +181,11 @@ def simulate_command(
     ) = None,
     seed: option(int | None, help="Noise seed (default: random, printed).") = None,
     throttle: option(int, help="gTHR for every step: below MIN_THR (200) kp = 10, otherwise 0.4.") = 0,
-    ki: KiOption = None,
+    ki: checks.KiOption = None,
     kp: option(float | None, help="Proportional gain, replacing both 10 and 0.4.") = None,
-    correction: CorrectionOption = None,
-    variant: VariantOption = None,
-    dt: DtOption = None,
+    correction: checks.CorrectionOption = None,
+    variant: checks.VariantOption = None,
+    dt: checks.DtOption = None,
     estimators: option(
         list[str] | None,
         "--estimator",
@@ -234,20 +215,20 @@ def simulate_command(
     """Run the filter alone: constant gyro/acc inputs through the firmware's Mahony filter (or any estimator).
 
     The UMaine Lab 5 AHRS simulator; prints the final eax (pitch), eay (roll), eaz (yaw)."""
-    check_count("--iterations", iterations, MAX_ITERATIONS)
-    check_vector("--gyro", gyro, "mdps")
-    check_vector("--acc", acc, "mg")
-    check_gain("--ki", ki)
-    check_gain("--kp", kp)
-    check_throttle("--throttle", throttle)
-    check_period("--dt", dt)
+    checks.check_count("--iterations", iterations, MAX_ITERATIONS)
+    checks.check_vector("--gyro", gyro, "mdps")
+    checks.check_vector("--acc", acc, "mg")
+    checks.check_gain("--ki", ki)
+    checks.check_gain("--kp", kp)
+    checks.check_throttle("--throttle", throttle)
+    checks.check_period("--dt", dt)
     estimator = _estimator(estimators)
     if json_out and csv_out == "-":
         raise UserError("--json and --csv - both write to stdout; give --csv a file name")
     check_outputs({"--csv": None if csv_out == "-" else csv_out, "--rrd": rrd, "--plot": plot}, force=force)
     gyro_sigma = _noise(gyro_noise, lab5.TYPICAL_GYRO_NOISE_MDPS, "gyro", "mdps", noise)
     acc_sigma = _noise(acc_noise, lab5.TYPICAL_ACC_NOISE_MG, "acc", "mg", noise)
-    given = dict(ki=ki, kp=kp, correction=correction, variant=check_variant(variant))
+    given = dict(ki=ki, kp=kp, correction=correction, variant=checks.check_variant(variant))
     options = {k: v for k, v in given.items() if v is not None}
     inputs = dict(gyro_mdps=gyro, acc_mg=acc, iterations=iterations, gyro_noise_mdps=gyro_sigma, acc_noise_mg=acc_sigma)
     res = _run("", **inputs, seed=seed, throttle=throttle, estimator=estimator, estimator_options=options, dt_s=dt)
@@ -300,8 +281,9 @@ def _run(what: str, **kwargs) -> lab5.SimulationResult:
         if what:
             raise UserError(f"{what}: {exc}") from None
         if isinstance(exc, ImportError):
-            estimator = kwargs["estimator"]
-            raise UserError(f"estimator {estimator!r} needs a package that is not installed ({exc})") from None
+            raise UserError(
+                f"estimator {kwargs['estimator']!r} needs a package that is not installed ({exc})"
+            ) from None
         raise UserError(str(exc)) from None
 
 
@@ -340,10 +322,10 @@ def _compare_runs(specs: list[str], inputs: dict, options: dict, throttle: int, 
                 )
             v = _compare_value(name, text.strip(), _COMPARE_NAMES[name])
             if name == "throttle":
-                check_throttle("--compare-with throttle", v)
+                checks.check_throttle("--compare-with throttle", v)
                 thr = v
             elif name == "variant":
-                opts[name] = check_variant(v)
+                opts[name] = checks.check_variant(v)
             elif name == "estimator":
                 if not registry.is_known(v):
                     raise UserError(f"--compare-with estimator={v}: unknown estimator")

@@ -19,7 +19,6 @@ from steval_viewer.sink_options import SinkOptions
 
 #: largest --nperseg (a window of 2^16 rows is 6.8 minutes at 161.54 Hz)
 MAX_NPERSEG = 65536
-#: most throttle bins
 MAX_THROTTLE_BINS = 100
 
 

@@ -8,15 +8,8 @@ from pathlib import Path
 
 import typer
 
+from steval_link.cli import checks
 from steval_link.cli.app import app, option
-from steval_link.cli.checks import (
-    CorrectionOption,
-    KiOption,
-    ThrottleFormerOption,
-    ThrottleScheduleOption,
-    check_gain,
-    command_line,
-)
 from steval_link.cli.outputs import check_output
 from steval_link.cli.progress import progress_bar, scaled
 from steval_link.constants import BAUD, KI
@@ -46,10 +39,10 @@ def synth_cmd(
     baud: option(
         int, help="USART1 baud rate: in the header and status frames; byte timing and queue drain follow it."
     ) = BAUD,
-    throttle_schedule: ThrottleScheduleOption = None,
-    throttle: ThrottleFormerOption = None,
-    ki: KiOption = None,
-    correction: CorrectionOption = None,
+    throttle_schedule: checks.ThrottleScheduleOption = None,
+    throttle: checks.ThrottleFormerOption = None,
+    ki: checks.KiOption = None,
+    correction: checks.CorrectionOption = None,
     text_mode: option(
         bool, "--text-mode", help="The text-mode build: $ATT lines every 16th step, $STA lines, plain log lines."
     ) = False,
@@ -89,7 +82,7 @@ def synth_cmd(
     if out is None:
         raise UserError("--out is required (FILE.stv for a capture)")
     check_output(out, option="--out", force=force)
-    check_gain("--ki", ki)
+    checks.check_gain("--ki", ki)
     opts = SynthOptions(
         scenario=scenario,
         duration_s=duration,
@@ -105,7 +98,7 @@ def synth_cmd(
         c_encoder=None if c_encoder is None else str(c_encoder),
         vibration=tuple(vibration or ()),
     )
-    opts = replace(opts, command_line=command_line(["steval", "synth"], opts.settings()))
+    opts = replace(opts, command_line=checks.command_line(["steval", "synth"], opts.settings()))
     t0 = time.perf_counter()
     with progress_bar("synth") as progress:
         res = synthesize(opts, scaled(progress, 0.0, 0.95))
