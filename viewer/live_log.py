@@ -43,7 +43,9 @@ class RowBatch:
     def __init__(self, times: Times, bad_state: dict[str, bool], cache: dict) -> None:
         import pyarrow as pa
 
-        self._pa, self.times, self.n = pa, times, len(times)
+        self._pa = pa
+        self.times = times
+        self.n = len(times)
         self.fields: list = []
         self.arrays: list = []
         self.bad_state = bad_state  # entity path -> its last row was a gap
@@ -163,9 +165,14 @@ class LiveLogger:
             bp.send_blueprint(rec, **self._blueprint)
         drone_model.log_static(rec, segs, with_replica=ent.SOURCE_REPLICA in segs)
         flight_log.log_flight_static(rec)  # the motor arrows with the first flight-control frame
-        self.frames = self.frames_missing = self._bin_count = self._records_queued = 0
-        # fw s of the last motor-arrow and 3D updates, host s of the last link row and text-record send
-        self._last_motors_fw = self._last_3d_s = self._last_link_s = self._records_sent_s = -math.inf
+        self.frames = 0
+        self.frames_missing = 0
+        self._bin_count = 0
+        self._records_queued = 0
+        self._last_motors_fw = -math.inf  # fw s of the last motor-arrow update
+        self._last_3d_s = -math.inf  # fw s of the last 3D update
+        self._last_link_s = -math.inf  # host s of the last link row
+        self._records_sent_s = -math.inf  # host s of the last text-record send
         self._last_step: int | None = None
         self._bin_start: float | None = None  # host s of the current 1 s frame-rate bin
         self._last_times: tuple[float, float] | None = None  # (fw, host) of the latest frame

@@ -218,7 +218,10 @@ def run_firmware(
     err, rmse = score_euler(out.thx, out.thy, truth.q_wxyz, truth.movement)
     instructions = np.asarray(report.step_instructions, np.int64)
     res = FirmwareResult(label, str(elf), trial.name, out.source, truth, out.thx, out.thy, err, rmse, instructions)
-    res.settings, res.emulated_s, res.notes, res.gains = out.settings, report.emulated_s, out.notes, out.gains
+    res.settings = out.settings
+    res.emulated_s = report.emulated_s
+    res.notes = out.notes
+    res.gains = out.gains
     res.wall_s = time.perf_counter() - t0
     if out.replica_thx is not None:
         _, res.replica_rmse_deg = score_euler(out.replica_thx, out.replica_thy, truth.q_wxyz, truth.movement)

@@ -55,8 +55,10 @@ def chain_gain(f_hz: float, sensor: str) -> float:
     """|gain| from a sinusoid at ``f_hz`` at the sensor to what the AHRS rows hold (at its alias): the boxcar for
     the accelerometer; the 416 Hz register hold, the gyro IIR and the boxcar for the gyro."""
     g = _boxcar_gain(f_hz)
-    if sensor == "gyro":  # the 416 Hz register's hold is |sinc(f / 416 Hz)|
-        g *= abs(complex(iir_frequency_response([f_hz])[0][0])) * abs(float(np.sinc(f_hz / GYRO_ODR_HZ)))
+    if sensor == "gyro":
+        x = math.pi * f_hz / GYRO_ODR_HZ
+        hold = 1.0 if x == 0 else abs(math.sin(x) / x)  # the 416 Hz register's sample-and-hold: |sinc(f / 416 Hz)|
+        g *= abs(complex(iir_frequency_response([f_hz])[0][0])) * hold
     return g
 
 
@@ -118,7 +120,8 @@ def welch_windows(x, fs_hz: float, nperseg: int, hop: int) -> tuple[np.ndarray, 
         return freq, np.zeros(0, np.int64), np.zeros((0, len(freq), a.shape[1]))
     starts = np.arange(0, n - nperseg + 1, hop, dtype=np.int64)
     idx = starts[:, None] + np.arange(nperseg)[None, :]
-    frames = a[idx] - a[idx].mean(axis=1, keepdims=True)  # (W, nperseg, K)
+    frames = a[idx]  # (W, nperseg, K)
+    frames -= frames.mean(axis=1, keepdims=True)
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)  # periodic Hann: scipy's Welch default
     spec = np.fft.rfft(frames * w[None, :, None], axis=1)
     psd = (spec.real**2 + spec.imag**2) / (fs_hz * float(np.sum(w * w)))

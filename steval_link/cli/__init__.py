@@ -18,9 +18,28 @@ from steval_link.stop_signals import interrupt, on_stop_signals
 
 __all__ = ["main", "register"]
 
-#: the sub-command modules by the command words they register (importing a module registers its commands)
-_MODULES = "ble command compare conformance data emulate estimator evaluate export live ports preflight replay"
-COMMANDS = {w: w for w in f"{_MODULES} report simulate spectrum synth".split()} | {"param": "command", "record": "live"}
+_MODULES = (
+    "ble",
+    "command",
+    "compare",
+    "conformance",
+    "data",
+    "emulate",
+    "estimator",
+    "evaluate",
+    "export",
+    "live",
+    "ports",
+    "preflight",
+    "replay",
+    "report",
+    "simulate",
+    "spectrum",
+    "synth",
+)
+#: the sub-command modules by the command words they register (importing a module registers its commands): each
+#: module its own word; "param" comes from the command module, "record" from the live module
+COMMANDS = {word: word for word in _MODULES} | {"param": "command", "record": "live"}
 
 
 def register(args: list[str] | None = None) -> typer.Typer:

@@ -75,7 +75,7 @@ static void normalized(const double *o, double *q)
     for (i = 0; i < 4; i++) q[i] = o[i] * nn;
 }
 
-/* S⁻¹ by the adjugate (np.linalg.inv in mekf.py, equal to rounding): column j holds rows j+1 × j+2 of S, over det */
+/* S⁻¹ by the adjugate (_inv3 of mekf.py): column j holds rows j+1 × j+2 of S, over det */
 static void inv3(const double *S, double *Si)
 {
     double c[9], det;
@@ -490,4 +490,15 @@ static struct PyModuleDef native_module = {
     NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__ekf_native(void) { return PyModule_Create(&native_module); }
+PyMODINIT_FUNC PyInit__ekf_native(void)
+{
+    PyObject *m = PyModule_Create(&native_module);
+    if (m == NULL) return NULL;
+    if (PyModule_AddIntConstant(m, "EKF3_STATE", EKF3_STATE) < 0 ||
+        PyModule_AddIntConstant(m, "MEKF_STATE", MEKF_STATE) < 0 ||
+        PyModule_AddIntConstant(m, "MEKF_ISTATE", MEKF_ISTATE) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -18,11 +18,6 @@ import numpy as np
 from steval_link.fw_math import choose_native
 from steval_link.quat import euler_from_quaternion
 
-try:  # the C loops of the EKFs' run() (built by setup.py, optional)
-    from steval_link.estimators import _ekf_native as ekf_native
-except ImportError:  # pragma: no cover - depends on the build
-    ekf_native = None
-
 
 @dataclass(frozen=True)
 class AttitudeEstimate:

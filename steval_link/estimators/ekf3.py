@@ -15,6 +15,10 @@ Prediction with the body rates ``ω = (p, q, r)`` (gyro, rad/s) and the Euler-ra
 (by default the mean takes the exact solution for a rate constant over the step: no forward-Euler error, no
 tan θ blow-up near ±90°; ``exact_propagation=False`` gives the course's forward-Euler step)
 
+    ∂φ̇/∂φ = tanθ·(cosφ·q − sinφ·r)       ∂φ̇/∂θ = (sinφ·q + cosφ·r) / cos²θ
+    ∂θ̇/∂φ = −sinφ·q − cosφ·r              ∂θ̇/∂θ = 0
+    ∂ψ̇/∂φ = (cosφ·q − sinφ·r) / cosθ      ∂ψ̇/∂θ = (sinφ·q + cosφ·r)·sinθ / cos²θ      (ψ column: 0)
+
     Q = dt²·W·(σ_ω²·I)·Wᵀ + dt·σ_p²·I     (W: the matrix of the Euler-rate equations above, f = W·ω)
 
 σ_ω is the gyro noise per sample (``gyro_noise_mdps``, mdps RMS), σ_p what the gyro model leaves out
@@ -41,9 +45,13 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ
 from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
-from steval_link.estimators.base import ekf_native as _native
 from steval_link.quat import qexp, qmul, quaternion_from_euler
 from steval_link.units import MDPS_TO_RADPS
+
+try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
+    from steval_link.estimators import _ekf_native as _native
+except ImportError:  # pragma: no cover - depends on the build
+    _native = None
 
 #: True when the C loop of :meth:`Ekf3.run` is built (≈ 100× faster; the Python step is the reference).
 NATIVE_AVAILABLE = _native is not None

@@ -38,9 +38,13 @@ import numpy as np
 
 from steval_link.constants import AHRS_RATE_HZ, GYRO_LATENCY_S
 from steval_link.estimators.base import AttitudeEstimate, Estimator, filter_rows
-from steval_link.estimators.base import ekf_native as _native
 from steval_link.quat import euler_from_quaternion, qexp, qmul
 from steval_link.units import MDPS_TO_RADPS
+
+try:  # the C loop of run() (built by setup.py, optional); the Python step below is the reference and fallback
+    from steval_link.estimators import _ekf_native as _native
+except ImportError:  # pragma: no cover - depends on the build
+    _native = None
 
 #: True when the C loop of :meth:`Mekf.run` is built (≈ 100× faster; the Python step is the reference).
 NATIVE_AVAILABLE = _native is not None
@@ -67,6 +71,23 @@ def _rotmat(w: float, x: float, y: float, z: float) -> np.ndarray:
             [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
+    )
+
+
+def _inv3(S: np.ndarray) -> np.ndarray:
+    """Inverse of a 3×3 matrix by its adjugate, as the C loop (S = H P Hᵀ + σ²I is symmetric positive definite)."""
+    a, b, c = S[0]
+    d, e, f = S[1]
+    g, h, i = S[2]
+    A = e * i - f * h
+    B = f * g - d * i
+    C = d * h - e * g
+    det = a * A + b * B + c * C
+    return (
+        np.array(
+            [[A, c * h - b * i, b * f - c * e], [B, a * i - c * g, c * d - a * f], [C, b * g - a * h, a * e - b * d]]
+        )
+        / det
     )
 
 
@@ -249,7 +270,7 @@ class Mekf(Estimator):
         PHt = P @ H.T
         S = H @ PHt
         S[_DIAG] += var
-        K = PHt @ np.linalg.inv(S)  # S = H P Hᵀ + σ²I: symmetric positive definite (σ² > 0)
+        K = PHt @ _inv3(S)
         if self.estimate_bias and self._acc_lp is not None and self._acc_lp.n < self._acc_lp.warmup:
             K[3:] = 0.0  # the warm-up mean says nothing about the bias: attitude-only (Joseph form stays valid)
         dxs = K @ np.array([ux - hx, uy - hy, uz - hz])
@@ -278,8 +299,8 @@ class Mekf(Estimator):
 
     # --- the C loop: the state packed into flat buffers (layout of _ekf_native.c, MEKF_*) ---------------------
     def _run_native(self, acc: np.ndarray, gyro: np.ndarray, q_out: np.ndarray) -> None:
-        st = np.zeros(114)  # MEKF_STATE; the C loop checks every buffer's size
-        ist = np.zeros(6, dtype=np.int64)  # MEKF_ISTATE
+        st = np.zeros(_native.MEKF_STATE)
+        ist = np.zeros(_native.MEKF_ISTATE, dtype=np.int64)
         nb = self.P.shape[0]
         st[0:14] = (*self.qs, *self.qc, *self.b, *self._w)
         st[14 : 14 + nb * nb] = self.P.ravel()

@@ -198,8 +198,14 @@ def _run_pure(acc, gyro, thr, q_out, st, settings: MahonySettings) -> np.ndarray
         kp_rows = np.where(thr < settings.min_thr, _F32(kp_ground), _F32(kp_flight)).astype(_F32)
         for k, (a, g, ahrs_kp) in enumerate(zip(acc_unit, gyro_rad, kp_rows)):
             g = list(g)  # float32 scalars, as a, v and e
-            q0q0, q0q1, q0q2, q1q1 = q0 * q0, q0 * q1, q0 * q2, q1 * q1
-            q1q3, q2q2, q2q3, q3q3 = q1 * q3, q2 * q2, q2 * q3, q3 * q3
+            q0q0 = q0 * q0
+            q0q1 = q0 * q1
+            q0q2 = q0 * q2
+            q1q1 = q1 * q1
+            q1q3 = q1 * q3
+            q2q2 = q2 * q2
+            q2q3 = q2 * q3
+            q3q3 = q3 * q3
 
             if settings.correction:  # e = a × v; exInt += ex * AHRS_KI * SENSOR_SAMPLING_TIME; g += kp·e + int
                 v = (_TWO * (q1q3 - q0q2), _TWO * (q0q1 + q2q3), q0q0 - q1q1 - q2q2 + q3q3)

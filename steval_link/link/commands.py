@@ -248,10 +248,12 @@ def _ack_of_row(a) -> AckFrame:
 
 
 def command_log(commands, acks) -> list[dict]:
-    """The ``Telemetry.commands`` with their ``acks`` in time order, as :func:`_log_row` dicts."""
+    """The ``Telemetry.commands`` with their ``acks`` in time order, each ``{"t_host_s", "cmd_seq", "command" (as
+    typed; None for an ack of a command not in the capture), "result" (None: no ack), "step", "text"}``."""
     out = []
-    # (cmd_seq, cmd) -> its first ack row
-    first = {(int(a["cmd_seq"]), int(a["cmd"])): j for j, a in reversed(list(enumerate(acks)))}
+    first: dict[tuple[int, int], int] = {}  # (cmd_seq, cmd) -> its first ack row
+    for j, a in enumerate(acks):
+        first.setdefault((int(a["cmd_seq"]), int(a["cmd"])), j)
     answered = set()
     for c in commands:
         command = Command(int(c["cmd"]), int(c["param"]), float(c["value"]))

@@ -106,7 +106,13 @@ class CommandFrame(_wire_fields(P.COMMAND_DTYPE)):
 
 Frame = AttitudeFrame | StatusFrame | TextFrame | TextRecordFrame | FlightFrame | AckFrame | CommandFrame
 #: The frame class of each fixed-size binary frame type, in the order of ``protocol.PAYLOAD_DTYPE`` (its wire fields).
-FRAME_OF_TYPE = dict(zip(P.PAYLOAD_DTYPE, (AttitudeFrame, StatusFrame, FlightFrame, AckFrame, CommandFrame)))
+FRAME_OF_TYPE = {
+    P.TYPE_ATTITUDE: AttitudeFrame,
+    P.TYPE_STATUS: StatusFrame,
+    P.TYPE_FLIGHT: FlightFrame,
+    P.TYPE_ACK: AckFrame,
+    P.TYPE_COMMAND: CommandFrame,
+}
 
 
 @dataclass(slots=True)

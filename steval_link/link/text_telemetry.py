@@ -319,7 +319,8 @@ def line_template(shape: _Shape) -> LineTemplate | None:
     if body is None:
         return None
     plain = re.sub(rb"\((?!\?)", b"(?:", body)  # the same without groups
-    valid, blanks = re.compile(b"(?:" + plain + rb"\r?+\n)*+"), re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+")
+    valid = re.compile(b"(?:" + plain + rb"\r?+\n)*+")
+    blanks = re.compile(b"(?:" + plain + rb"\r?+\n(?:\r?+\n)*+)*+")
     groups = re.compile(body + rb"\r?+\n")
     return LineTemplate(valid, blanks, groups, sep, words, trailing, shape.names, shape.units, shape.kind, kinds)
 

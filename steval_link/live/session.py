@@ -25,7 +25,7 @@ from steval_link.live import health
 from steval_link.live.health import HealthDisplay, LiveSummary, _fmt_bytes
 from steval_link.live.pipeline import LivePipeline
 from steval_link.live.serial_source import LinkError, SerialSource, serial_health, serial_summary
-from steval_link.live.sources import BREAK, END, NOTE, Chunk, Source, open_capture, record_chunk
+from steval_link.live.sources import BREAK, END, NOTE, Chunk, LinkInfo, Source, open_capture, record_chunk
 from steval_link.stop_signals import on_stop_signals
 
 __all__ = ["CommandConsole", "LiveOptions", "LiveSession", "LiveSummary", "source_for"]
@@ -97,11 +97,16 @@ class LiveSession:
     ) -> None:
         if options.sinks is not None and viewer_factory is None:
             raise ValueError("a session that uses Rerun (a view or an .rrd file) needs a viewer_factory")
-        self.options, self.source = options, source
-        self.viewer_factory, self.check_outputs = viewer_factory, check_outputs
+        self.options = options
+        self.source = source
+        self.viewer_factory = viewer_factory
+        self.check_outputs = check_outputs
         self.display = HealthDisplay(stream or sys.stderr, tty=tty)
         self.clock = HostClock()
-        self.capture = self.viewer = self.console = self.info = None  # set by run()
+        self.capture: CaptureWriter | None = None  # set by run()
+        self.viewer = None
+        self.console: CommandConsole | None = None
+        self.info: LinkInfo | None = None
         self.pipeline: LivePipeline | None = None  # made once the capture and the viewer are there
         self._stop_reason: str | None = None
         self._t_link_s: float | None = None  # the last chunk's time on a link's own clock (emulated)
@@ -351,9 +356,11 @@ class CommandConsole:
         stream: TextIO | None = None,
         enabled: bool = True,
     ) -> None:
-        self.channel, self.note = CommandChannel(send, record), note
+        self.channel = CommandChannel(send, record)
+        self.note = note
         self._lines: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.typing, self.typing_changed = "", False  # the line being typed on a terminal (shown in the health line)
+        self.typing = ""  # the line being typed on a terminal (shown in the health line), "" otherwise
+        self.typing_changed = False
         self._restore = None  # (fd, its old mode) while the terminal is raw
         if enabled:
             src = stream if stream is not None else sys.stdin

@@ -83,7 +83,11 @@ class Peripheral:
 
 class Rcc(Peripheral):
     name = "RCC"
-    CR, PLLCFGR, CFGR, BDCR, CSR = 0x00, 0x04, 0x08, 0x70, 0x74
+    CR = 0x00
+    PLLCFGR = 0x04
+    CFGR = 0x08
+    BDCR = 0x70
+    CSR = 0x74
 
     def __init__(self, board, base):
         super().__init__(board, base, reset={self.CR: 0x83, self.PLLCFGR: 0x24003010, self.CSR: 0x0E000000})
@@ -112,7 +116,9 @@ class Pwr(Peripheral):
 
 class Gpio(Peripheral):
     name = "GPIO"
-    IDR, ODR, BSRR = 0x10, 0x14, 0x18
+    IDR = 0x10
+    ODR = 0x14
+    BSRR = 0x18
     c_readable = (IDR,)
 
     def read(self, off):
@@ -144,7 +150,9 @@ class Adc(Peripheral):
     """ADC1: a conversion completes at once on SWSTART; DR holds the battery divider's reading."""
 
     name = "ADC1"
-    SR, CR2, DR = 0x00, 0x08, 0x4C
+    SR = 0x00
+    CR2 = 0x08
+    DR = 0x4C
     c_readable = c_owned = (SR, CR2)
     #: 12-bit reading of the battery sense divider: the firmware's VBAT = counts·3.3/4095·(10k + 20k)/20k = 3.90 V, a
     #: charged 1S LiPo

@@ -204,7 +204,9 @@ class NativeUsart(Peripheral):
     def __init__(self, board, base, irq):
         super().__init__(board, base)
         self.irq = irq
-        self.st, self.lib, self.ptr = board.st, board.lib, board.st_ptr
+        self.st = board.st
+        self.lib = board.lib
+        self.ptr = board.st_ptr
         self.st.uregs[UsartReg.SR // 4] = SR_RESET
 
     def read(self, off):
