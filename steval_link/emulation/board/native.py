@@ -124,6 +124,23 @@ def _raw(t: int | None) -> int:
     return NONE if t is None else int(t)
 
 
+class _InCore:
+    """An attribute of a Python model kept in the C core's state, ``model.st.<field>``; ``optional``: NONE is None."""
+
+    def __init__(self, field: str, optional: bool = False) -> None:
+        self.field = field
+        self.optional = optional
+
+    def __get__(self, model, owner=None):
+        if model is None:
+            return self
+        value = getattr(model.st, self.field)
+        return _opt(value) if self.optional else value
+
+    def __set__(self, model, value) -> None:
+        setattr(model.st, self.field, _raw(value) if self.optional else value)
+
+
 def core_library() -> ctypes.CDLL | None:
     """The C core (None when the extension is not built)."""
     try:
@@ -148,16 +165,12 @@ class NativeNvic(Nvic):
     """:class:`~steval_link.emulation.board.scs.Nvic` over the C core's NVIC state."""
 
     def __init__(self, st: CoreState, lib, ptr) -> None:
-        self.st, self.lib, self.ptr = st, lib, ptr
+        self.st = st
+        self.lib = lib
+        self.ptr = ptr
         self.prio = st.prio
 
-    @property
-    def prigroup(self) -> int:
-        return self.st.prigroup
-
-    @prigroup.setter
-    def prigroup(self, v: int) -> None:
-        self.st.prigroup = v
+    prigroup = _InCore("prigroup")
 
     def _bit(self, arr, i: int) -> bool:
         return bool(arr[i >> 6] >> (i & 63) & 1)
@@ -253,10 +266,12 @@ class NativeTimer(Peripheral):
 
     def __init__(self, board, base, irq: int | None, name: str):
         super().__init__(board, base, name=name)
-        self.irq, self.index = irq, [t[0] for t in TIMERS].index(name)
+        self.irq = irq
+        self.index = [t[0] for t in TIMERS].index(name)
         self.t = board.st.tim[self.index]
         self.t.core, self.t.irq, self.t.next, self.t.first_update = ctypes.addressof(board.st), _raw(irq), NONE, NONE
-        self.lib, self.ptr = board.lib, board.st_ptr
+        self.lib = board.lib
+        self.ptr = board.st_ptr
 
     def read(self, off):
         return self.lib.timer_read(self.ptr, I64(self.index), U32(off))
@@ -291,21 +306,8 @@ class NativeScs(Scs):
         self.st = board.st
         super().__init__(board)
 
-    @property
-    def systick_next(self) -> int | None:
-        return _opt(self.st.systick_next)
-
-    @systick_next.setter
-    def systick_next(self, t: int | None) -> None:
-        self.st.systick_next = _raw(t)
-
-    @property
-    def countflag(self) -> int:
-        return self.st.countflag
-
-    @countflag.setter
-    def countflag(self, v: int) -> None:
-        self.st.countflag = v
+    systick_next = _InCore("systick_next", optional=True)
+    countflag = _InCore("countflag")
 
     def write(self, off, value):
         super().write(off, value)
@@ -604,13 +606,7 @@ class NativeBoard(PythonBoard):
     def instructions_now(self) -> int:
         return self.st.instructions + self.st.n
 
-    @property
-    def exception_instructions(self) -> int:
-        return self.st.exc_instructions
-
-    @exception_instructions.setter
-    def exception_instructions(self, v: int) -> None:
-        self.st.exc_instructions = v
+    exception_instructions = _InCore("exc_instructions")
 
     def request_stop(self) -> None:
         self.lib.core_request_stop(self.st_ptr)
