@@ -28,7 +28,8 @@ class BleSource(Source):
     def __init__(self, target: str | None, *, backend: BleBackend, layout: str = "stock") -> None:
         self.target = target
         self.what = target or f"{DEVICE_NAME_PREFIX}*"  # the drone asked for: its name or address, or any DRN1…
-        self.backend, self.layout = backend, layout_named(layout)
+        self.backend = backend
+        self.layout = layout_named(layout)
         self._inbox: deque[Chunk] = deque(maxlen=INBOX_MAX)
         self._closed = False
         self.link: BleLink | None = None

@@ -39,7 +39,8 @@ class EmulatedSource(Source):
         self.emu_options = emulation
         #: the release whose filter the replica runs (named by ``variant_from``; else the ELF's code: see open)
         self._filter = {"variant": variant, "from": variant_from} if variant is not None else None
-        self.realtime, self.commands = realtime, list(commands or [])
+        self.realtime = realtime
+        self.commands = list(commands or [])
         self.emu: Emulation | None = None
         self.truth = self._record = None  # the trial's truth and the capture, once chunks() starts
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S

@@ -126,7 +126,8 @@ class LiveEstimators:
     def __init__(self, names: list[str], *, clock=time.perf_counter) -> None:
         self.mahony = LiveMahony() if "st-mahony" in names else None
         self.others = {name: registry.create(name) for name in names if name != "st-mahony"}
-        self.names, self.clock = list(names), clock
+        self.names = list(names)
+        self.clock = clock
         self.disabled: dict[str, str] = {}  # name → why it was disabled (one sentence)
         self._watch = {name: _Watch(clock()) for name in self.others}
 
@@ -244,7 +245,8 @@ class BatchOutlet:
     """One logger's merged batches, out after ``interval_s`` or ``max_stream_s`` × 161.5 rows; events after them."""
 
     def __init__(self, logger, interval_s: float, max_stream_s: float | None = None) -> None:
-        self.logger, self.interval_s = logger, interval_s
+        self.logger = logger
+        self.interval_s = interval_s
         self.max_rows = max(1, math.ceil((interval_s if max_stream_s is None else max_stream_s) * C.AHRS_RATE_HZ))
         self._batches: list[LiveRows] = []
         self._events: list[tuple[str, tuple]] = []  # (logger method, its arguments)
@@ -310,7 +312,8 @@ class LivePipeline:
         self._sent: collections.OrderedDict[int, Command] = collections.OrderedDict()
         self.text_attitude = RecordAttitude(text_map)  # records of text telemetry that are an attitude, as rows
         self.binary = False  # binary attitude frames came (the replica's bit-exact inputs): records are only series
-        self.ble, self.grid = B.BleDecoder(), LiveGrid(ble_layout)  # BLE notifications → the sender's sample grid
+        self.ble = B.BleDecoder()  # BLE notifications
+        self.grid = LiveGrid(ble_layout)  # → the sender's sample grid
 
     @classmethod
     def for_session(cls, session) -> LivePipeline:

@@ -111,12 +111,16 @@ class RecorderProtocol(Protocol):
     reopened that sends no valid frame on probation is rejected; another program reading the port is named once."""
 
     def __init__(self, record: Record, inbox: Inbox, finder: autodetect.PortFinder | None, clock) -> None:
-        self.record, self.inbox, self.finder, self.clock = record, inbox, finder, clock
+        self.record = record
+        self.inbox = inbox
+        self.finder = finder
+        self.clock = clock
         self.status = LinkStatus()  # ``offline``: host Unix times; ``lost_at_s``, ``connected_at_s``: monotonic
         self.events: collections.deque[str] = collections.deque(maxlen=64)  # messages for the display
         self._probe: StreamDecoder | None = None  # a port reopened on probation: its frames so far
         self._probe_frames = 0
-        self._holders_said, self._holders = set(), []  # the pids named already; the (pid, name) last looked up
+        self._holders_said: set[int] = set()  # the pids named already
+        self._holders: list[tuple[int, str]] = []  # the (pid, name) last looked up
         self._last_data_s = self._holders_checked_s = -math.inf  # monotonic times of the last chunk and lookup
 
     def _t_capture(self, t_unix_s: float | None = None) -> float:
@@ -246,13 +250,16 @@ class SerialSource(Source):
         """The port (waiting for it with ``wait``: ``note(text)`` says so once), or one UserError sentence."""
         self.path, self.ser = open_port(self.url, self.baud, wait=self.wait, note=note, stopped=self._closed.is_set)
         if self.replay:  # a recording: nothing to find again after a loss
-            self.finder, self._described, self._extra = None, self.ser.describe(), {"replay_of": str(self.ser.path)}
+            self.finder = None
+            self._described = self.ser.describe()
+            self._extra = {"replay_of": str(self.ser.path)}
             # an emulator's file (its status frames count instructions); a log (its first line is whole)
             self._extra.update({flag: True for flag in ("emulated", "line_start") if getattr(self.ser, flag)})
         else:
             identity = autodetect.PortIdentity.of(self.path)
             self.finder = autodetect.PortFinder(identity, pattern=self.url if autodetect.is_glob(self.url) else None)
-            self._described, self._extra = identity.describe(), {"device": identity.device, "usb": identity.describe()}
+            self._described = identity.describe()
+            self._extra = {"device": identity.device, "usb": identity.describe()}
 
     def describe(self) -> LinkInfo:
         return LinkInfo(
