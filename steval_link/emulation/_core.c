@@ -13,6 +13,11 @@
 #else
 #define EXPORT __attribute__((visibility("default")))
 #endif
+#if defined(_MSC_VER)
+#define COLD __declspec(noinline)
+#else
+#define COLD __attribute__((noinline, cold))
+#endif
 
 typedef int (*emu_start_t)(void *uc, uint64_t begin, uint64_t until, uint64_t timeout, size_t count);
 typedef int (*emu_stop_t)(void *uc);
@@ -841,7 +846,8 @@ EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg)
   return 1;
 }
 
-static void dispatch(core_t *s, uint64_t address, uint32_t size) {
+/* Out of line: the count hook's common path (no site here) then saves no registers. */
+COLD static void dispatch(core_t *s, uint64_t address, uint32_t size) {
   touched(s);
   int64_t lo = 0, hi = s->n_sites;
   while (lo < hi) {
