@@ -120,7 +120,7 @@ class _FakeEmu:
         self.k0 = k0
         self.k = 0
 
-    def tick_index(self) -> int:
+    def tick_index(self, mark=None) -> int:
         return self.k
 
     def trial_time_s(self, k):

@@ -36,8 +36,9 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 
 /* py_event kinds: TIM9's update event (the tick observers), drain the output buffer, a Sensor_IO_Read the images
  * cannot answer, a Python code hook (arg: its index; hook_addr, hook_size), an access to a mirrored page the mirror
- * cannot serve, a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes) */
-enum { EV_TICK = 1, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND };
+ * cannot serve, a bit-band access outside USART1 (hook_addr: offset in the alias, hook_size: bytes), a full mark
+ * buffer */
+enum { EV_TICK = 1, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND, EV_MARKS_FULL };
 /* fault codes (Python words the message) */
 enum { F_PYTHON = 1, F_STACK, F_RETURN, F_CPU_EXC, F_EMU };
 
@@ -48,11 +49,13 @@ enum { CR1_UE = 0x2000, CR1_TXEIE = 0x80, CR1_TCIE = 0x40, CR1_RXNEIE = 0x20, CR
 #define MAX_SITES 512
 #define FLASH_BASE 0x08000000u
 /* code site kinds */
-enum { K_UNMASK = 1, K_IDLE, K_WFI, K_SENSOR, K_PY };
+enum { K_UNMASK = 1, K_IDLE, K_WFI, K_SENSOR, K_PY, K_MARK };
 #define MAX_IDLE 4
 #define MAX_MIRROR 10
 #define MAX_IDLE_WORDS 8
 #define POLL_STACK 256
+#define MAX_MARK_RANGES 8
+#define MARK_WORDS 6
 
 /* A Python peripheral's page with reads served in C: the words marked served hold what Python's model reads
  * (Python keeps them current); other reads and every write go to Python. */
@@ -130,6 +133,13 @@ typedef struct {
   int64_t plan_u0, plan_n, plan_until, plan_addr, plan_len;
   /* ADC1's mirror (-1: none), whose SR and CR2 words C owns, and the reading its DR returns */
   int64_t adc_page, adc_dr;
+  /* marks (K_MARK sites; arg: the mark's kind), read by Python after the run: MARK_WORDS words each (kind, now,
+   * instructions, exception instructions, CYCCNT, TIM9 updates) and mark_bytes RAM bytes each (the ranges at RAM
+   * offsets mark_off, mark_size bytes, in order); CYCCNT is cyccnt_frozen while DWT is not counting */
+  int64_t *mark_w;
+  uint8_t *mark_b;
+  int64_t mark_cap, mark_len, mark_bytes, n_mark_ranges, mark_off[MAX_MARK_RANGES], mark_size[MAX_MARK_RANGES];
+  int64_t cyccnt_frozen;
 } core_t;
 
 EXPORT int64_t core_sizeof(void) { return (int64_t)sizeof(core_t); }
@@ -847,6 +857,26 @@ EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg)
 }
 
 /* Out of line: the count hook's common path (no site here) then saves no registers. */
+/* A mark: the clock, the counters and the marked RAM bytes, as a Python probe here would read them. */
+static void mark(core_t *s, int64_t kind) {
+  if (s->mark_len >= s->mark_cap) ((py_event_t)s->py_event)(EV_MARKS_FULL, 0);
+  if (s->mark_len >= s->mark_cap) return; /* (Python could not take them: it stopped the run) */
+  sync_now(s);
+  int64_t *w = s->mark_w + MARK_WORDS * s->mark_len;
+  w[0] = kind;
+  w[1] = s->now;
+  w[2] = instructions_now(s);
+  w[3] = s->exc_instructions;
+  w[4] = s->cyccnt_on ? s->now - s->cyccnt_base : s->cyccnt_frozen;
+  w[5] = s->tim[0].updates;
+  uint8_t *b = s->mark_b + s->mark_bytes * s->mark_len;
+  for (int64_t k = 0; k < s->n_mark_ranges; k++) {
+    memcpy(b, s->ram + s->mark_off[k], (size_t)s->mark_size[k]);
+    b += s->mark_size[k];
+  }
+  s->mark_len++;
+}
+
 COLD static void dispatch(core_t *s, uint64_t address, uint32_t size) {
   touched(s);
   int64_t lo = 0, hi = s->n_sites;
@@ -863,6 +893,7 @@ COLD static void dispatch(core_t *s, uint64_t address, uint32_t size) {
       case K_IDLE: idle_hook(s, address); break;
       case K_WFI: wfi_hook(s); break;
       case K_SENSOR: sensor_read_hook(s); break;
+      case K_MARK: mark(s, s->site_arg[i]); break;
       case K_PY:
         s->hook_addr = (int64_t)address;
         s->hook_size = size;

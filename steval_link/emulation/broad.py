@@ -206,7 +206,7 @@ class StepTruth:
         self.trial: BroadTrial = emu.motion.trial
         self._last_tick: list[int] = []
         self._taken = 0
-        emu.step_start_observers.append(lambda board: self._last_tick.append(emu.tick_index()))
+        emu.step_start_observers.append(lambda mark: self._last_tick.append(emu.tick_index(mark)))
 
     @property
     def last_ticks(self) -> np.ndarray:

@@ -41,6 +41,8 @@ from steval_link import constants as C
 from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
+from steval_link.emulation.board.core import Mark
+from steval_link.emulation.board.memory_map import RAM_BASE, RAM_SIZE
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
 from steval_link.emulation.scenarios import random_streams, scenario
@@ -52,6 +54,10 @@ __all__ = ["EmulationOptions", "Emulation", "EmulationReport", "WINDOW_S", "MOUN
 WINDOW_S = 10.0  #: motion is rendered this many seconds at a time
 _WINDOW_TICKS = int(round(WINDOW_S / C.TICK_PERIOD_S))
 WATCHDOG_S = 6.0  #: the watchdog: no USART1 byte or AHRS step for this long (emulated) → stop, saying where
+#: the AHRS globals each step's marks copy (symbol, bytes): the filter's inputs and outputs (float mg, mdps, int16
+#: gTHR, q0..q3, Euler angles in rad)
+STEP_RAM = (("acc_ahrs", 12), ("gyro_ahrs", 12), ("gTHR", 2), ("ahrs", 16), ("euler_ahrs", 12))
+_STEP_START, _STEP_END = 0, 1  # the marks' kinds
 
 
 @dataclass
@@ -260,16 +266,17 @@ class Emulation:
         self.board.tick_observers.append(self._on_tick)
         self.board.tick_planner = self.plan_ticks
         self._steps: list[int] = []
-        #: called with the board at each AHRS step's start (``ahrs_fusion_ag`` entry) and end (Euler angles computed)
-        self.step_start_observers: list[Callable[[Board], None]] = []
-        self.step_end_observers: list[Callable[[Board], None]] = []
+        #: called with a board ``Mark`` (the clock, the counters, the ``STEP_RAM`` globals) of each AHRS step's start
+        #: (``ahrs_fusion_ag`` entry) and end (Euler angles computed), after the slice that ran it
+        self.step_start_observers: list[Callable[[Mark], None]] = []
+        self.step_end_observers: list[Callable[[Mark], None]] = []
         self._dwt: list[int] = []
         self._step_start = None  # (instructions, exception instructions, CYCCNT) at the step's start
         self._first_step_s: float | None = None
         self.n_steps = 0
         self._wall_s = 0.0
         self._bytes = 0
-        self._live_tx: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # from other threads, for the next slice
+        self._live_tx: queue.SimpleQueue = queue.SimpleQueue()  # (bytes, emulated s or None) for the next slice
         self._host_sched: list[tuple[int, int, bytes]] = []  # heap of (instruction count, order, bytes) to send
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
         self._host_order = itertools.count()
@@ -290,10 +297,13 @@ class Emulation:
         self.board.usart1.inject(bytes(data), t)
         heapq.heappush(self._host_sched, (t, next(self._host_order), bytes(data)))
 
-    def send(self, data: bytes) -> None:
-        """Queue ``data`` (host → drone) from any thread: it goes on the RX line at the start of the next slice."""
+    def send(self, data: bytes, at_s: float | None = None) -> None:
+        """Queue ``data`` (host → drone) from any thread, for :meth:`send_at` at the start of the next slice: at
+        emulated time ``at_s`` (s), or then."""
+        if at_s is not None and not (math.isfinite(at_s) and at_s >= 0):
+            raise ValueError(f"emulated time must be finite and >= 0, got {at_s}")
         if data:
-            self._live_tx.put(bytes(data))
+            self._live_tx.put((bytes(data), at_s))
 
     def take_host_bytes(self) -> list[tuple[bytes, float]]:
         """The host → drone blocks that went on the line since the last call, with their emulated start times (s)."""
@@ -302,7 +312,8 @@ class Emulation:
 
     def _host_progress(self) -> None:
         while not self._live_tx.empty():  # this thread is the one consumer
-            self.send_at(self._live_tx.get_nowait(), self.board.now / C.CPU_HZ)
+            data, at_s = self._live_tx.get_nowait()
+            self.send_at(data, self.board.now / C.CPU_HZ if at_s is None else at_s)
         now = self.board.now
         while self._host_sched and self._host_sched[0][0] <= now:
             t, _, data = heapq.heappop(self._host_sched)
@@ -352,32 +363,41 @@ class Emulation:
         start = e.addr("ahrs_fusion_ag") or e.addr("stv_fw_step_begin")
         end = e.addr("stv_fw_step_end") or e.addr("GetTargetEulerAngle")
         if start is not None and end is not None:
-            b.probe(start, self._on_step_start)
-            b.probe(end, self._on_step_end)
+            ram = [(e.addr(name), n) for name, n in STEP_RAM if e.addr(name) is not None]
+            b.mark_ram([(a, n) for a, n in ram if RAM_BASE <= a and a + n <= RAM_BASE + RAM_SIZE])
+            b.mark(start, _STEP_START)
+            b.mark(end, _STEP_END)
 
-    def _on_step_start(self, board: Board) -> None:
-        self._step_start = (board.instructions_now(), board.exception_instructions, board.scs.cyccnt())
+    def _take_steps(self) -> None:
+        """The AHRS steps' marks of the last slice to the step observers, in order."""
+        for m in self.board.take_marks():
+            (self._on_step_start if m.kind == _STEP_START else self._on_step_end)(m)
+
+    def _on_step_start(self, m: Mark) -> None:
+        self._step_start = (m.instructions, m.exception_instructions, m.cyccnt)
         if self._first_step_s is None:
-            self._first_step_s = board.now / C.CPU_HZ
+            self._first_step_s = m.now / C.CPU_HZ
         for ob in self.step_start_observers:
-            ob(board)
+            ob(m)
 
-    def _on_step_end(self, board: Board) -> None:
+    def _on_step_end(self, m: Mark) -> None:
         if self._step_start is None:
             return
         i0, x0, c0 = self._step_start
-        n = board.instructions_now() - i0 - (board.exception_instructions - x0)
+        n = m.instructions - i0 - (m.exception_instructions - x0)
         self.n_steps += 1
         if len(self._steps) < 100_000:
             self._steps.append(n)
-            self._dwt.append(board.scs.cyccnt() - c0)
+            self._dwt.append(m.cyccnt - c0)
         self._step_start = None
         for ob in self.step_end_observers:
-            ob(board)
+            ob(m)
 
-    def tick_index(self) -> int:
-        """Motion tick index of the latest TIM9 update (the sample the ISR last read)."""
-        return self.bus.tick_index(self.board)
+    def tick_index(self, mark: Mark | None = None) -> int:
+        """Motion tick index of the latest TIM9 update (the sample the ISR last read), now or at ``mark``."""
+        if mark is None:
+            return self.bus.tick_index(self.board)
+        return self.bus.tick_index(self.board, updates=mark.tim9_updates, now=mark.now)
 
     def tick_time_s(self, k) -> np.ndarray | float:
         """Emulated time (s since power-up) of motion tick ``k``'s TIM9 update (after TIM9 started)."""
@@ -401,7 +421,10 @@ class Emulation:
         while b.now < end:
             self._host_progress()
             t0 = time.perf_counter()
-            b.run_until(min(end, b.now + slice_cycles))
+            try:
+                b.run_until(min(end, b.now + slice_cycles))
+            finally:  # (the steps before a fault too)
+                self._take_steps()
             self._wall_s += time.perf_counter() - t0
             self._host_progress()
             data, _, last_t = b.take_output()

@@ -90,13 +90,15 @@ class SensorBus:
         self._last_tick = -1
         self._cached_k = self._cached = None
 
-    def tick_index(self, board) -> int:
+    def tick_index(self, board, *, updates: int | None = None, now: int | None = None) -> int:
+        """The motion tick of TIM9's latest update, now or when TIM9 had made ``updates`` at clock ``now``."""
         tim = board.tim9
-        if tim.first_update is None:
-            return board.now // C.TICK_CYCLES
+        updates, now = (tim.updates, board.now) if updates is None else (updates, now)
+        if tim.first_update is None or not updates:
+            return now // C.TICK_CYCLES
         if self.tick_offset is None:
             self.tick_offset = -(-tim.first_update // C.TICK_CYCLES)
-        return self.tick_offset + tim.updates - 1
+        return self.tick_offset + updates - 1
 
     def read(self, device: int, reg: int, n: int, board) -> bytes:
         dev = self.devices.get(device)

@@ -59,6 +59,26 @@ TIM_EVENT_CNT = 16
 UC_PROT_RX, UC_PROT_RWX, UC_PROT_R = 5, 7, 1
 
 
+@dataclass(frozen=True)
+class Mark:
+    """One pass of the CPU at a marked address: the board as a probe there reads it (see :meth:`PythonBoard.mark`)."""
+
+    kind: int  #: the kind given to :meth:`PythonBoard.mark`
+    now: int  #: the instruction clock
+    instructions: int  #: instructions executed (idle and poll skips included, as ``instructions_now``)
+    exception_instructions: int  #: of those, inside exception handlers
+    cyccnt: int  #: DWT CYCCNT (not wrapped at 32 bits)
+    tim9_updates: int  #: TIM9 update events so far
+    ram: tuple[tuple[int, bytes], ...]  #: (address, bytes) of each range of :meth:`PythonBoard.mark_ram`
+
+    def ram_read(self, addr: int, n: int) -> bytes:
+        """``n`` bytes at ``addr`` from the marked ranges (ValueError: not marked)."""
+        for a, data in self.ram:
+            if a <= addr and addr + n <= a + len(data):
+                return data[addr - a : addr - a + n]
+        raise ValueError(f"0x{addr:08x} (+{n}) is not in the RAM ranges the board marks")
+
+
 @dataclass
 class BoardStats:
     instructions: int = 0
@@ -111,6 +131,8 @@ class PythonBoard:
         self._skip_base = 0
         self._run_end = 0
         self._resumed_idle = False
+        self._mark_ram: list[tuple[int, int]] = []
+        self._marks: list[Mark] = []
         self._map_memory()
         self.regs = Registers(uc)
         self.exceptions = Exceptions(self)
@@ -257,6 +279,28 @@ class PythonBoard:
             fn(self)
 
         self.code_hook(addr, hook)
+
+    def mark_ram(self, ranges: list[tuple[int, int]]) -> None:
+        """The RAM ranges (address, bytes) each :class:`Mark` copies. Set before the run."""
+        for addr, n in ranges:
+            if not (RAM_BASE <= addr and addr + n <= RAM_BASE + RAM_SIZE):
+                raise ValueError(f"0x{addr:08x} (+{n}) is not in RAM")
+        self._mark_ram = list(ranges)
+
+    def mark(self, addr: int, kind: int) -> None:
+        """Record a :class:`Mark` of ``kind`` whenever the CPU reaches ``addr``; :meth:`take_marks` hands them over.
+        Unlike :meth:`probe`, no Python runs at the pass on the C core."""
+        self.probe(addr, lambda board: self._marks.append(self._mark_now(kind)))
+
+    def _mark_now(self, kind: int) -> Mark:
+        ram = tuple((a, self.ram_read(a, n)) for a, n in self._mark_ram)
+        counters = (self.now, self.instructions_now(), self.exception_instructions, self.scs.cyccnt())
+        return Mark(kind, *counters, self.tim9.updates, ram)
+
+    def take_marks(self) -> list[Mark]:
+        """The marks since the last call, in order."""
+        out, self._marks = self._marks, []
+        return out
 
     def code_hook(self, addr: int, fn: Callable) -> None:
         """Call ``fn(uc, address, size, user)`` before the instruction at ``addr``."""

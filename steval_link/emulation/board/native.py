@@ -14,7 +14,7 @@ import numpy as np
 
 from steval_link import constants as C
 from steval_link.emulation.board.calls import FirmwareCalls
-from steval_link.emulation.board.core import PythonBoard
+from steval_link.emulation.board.core import Mark, PythonBoard
 from steval_link.emulation.board.cpu import cpsie_sites, uclib, wfi_sites
 from steval_link.emulation.board.fault import describe_fault, describe_stop
 from steval_link.emulation.board.memory_map import (
@@ -41,10 +41,12 @@ MAX_IDLE, MAX_IDLE_WORDS, MAX_MIRROR, MAX_SITES, SENSOR_DEVICES = 4, 8, 10, 512,
 #: bytes of the stack's top the TXE/TC poll skip compares between two status reads
 POLL_STACK = 256
 #: py_event kinds: TIM9's tick, output buffer full, a sensor read for Python, a Python code hook, a mirrored access,
-#: a bit-band access outside USART1
-EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND = 1, 2, 3, 4, 5, 6
-#: code site kinds: after cpsie, idle poll, wfi, Sensor_IO_Read, a Python hook
-K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY = 1, 2, 3, 4, 5
+#: a bit-band access outside USART1, the mark buffer full
+EV_TICK, EV_OUT_FULL, EV_SENSOR, EV_CODE, EV_MMIO, EV_BITBAND, EV_MARKS_FULL = 1, 2, 3, 4, 5, 6, 7
+#: code site kinds: after cpsie, idle poll, wfi, Sensor_IO_Read, a Python hook, a mark
+K_UNMASK, K_IDLE, K_WFI, K_SENSOR, K_PY, K_MARK = 1, 2, 3, 4, 5, 6
+#: marks: RAM ranges, int64 words and capacity of the C buffer (drained into Python when full)
+MAX_MARK_RANGES, MARK_WORDS, MARK_CAPACITY = 8, 6, 4096
 #: fault codes: a Python exception, stack overflow, bad exception return, CPU exception, unicorn error
 F_PYTHON, F_STACK, F_RETURN, F_CPU_EXC, F_EMU = 1, 2, 3, 4, 5
 #: bytes: host → drone queue, output buffer (drained into Board.out when full), RX log
@@ -113,6 +115,10 @@ class CoreState(ctypes.Structure):
         *_same(I64, "scs_page cyccnt_on cyccnt_base usart_base"),
         *_same(P, "plan_img plan_ram"),
         *_same(I64, "plan_u0 plan_n plan_until plan_addr plan_len adc_page adc_dr"),
+        *_same(P, "mark_w mark_b"),
+        *_same(I64, "mark_cap mark_len mark_bytes n_mark_ranges"),
+        *_same(I64 * MAX_MARK_RANGES, "mark_off mark_size"),
+        ("cyccnt_frozen", I64),
     ]
 
 
@@ -316,6 +322,7 @@ class NativeScs(Scs):
         st.systick_tickint = 1 if self.regs.get(ScsReg.SYST_CSR, 0) & SYST_TICKINT else 0
         st.vtor = self.regs.get(ScsReg.VTOR, 0)
         st.cyccnt_on, st.cyccnt_base = self.cyccnt_frozen is None, self.cyccnt_base
+        st.cyccnt_frozen = self.cyccnt_frozen or 0
 
 
 class NativeBoard(PythonBoard):
@@ -335,6 +342,7 @@ class NativeBoard(PythonBoard):
         self.rx_t, self.rx_b = (I64 * RX_CAPACITY)(), (U8 * RX_CAPACITY)()
         self.rxlog_t, self.rxlog_b = (I64 * RXLOG_CAPACITY)(), (U8 * RXLOG_CAPACITY)()
         self.out_t, self.out_b = (I64 * OUT_CAPACITY)(), (U8 * OUT_CAPACITY)()
+        self.mark_w, self.mark_b = (I64 * (MARK_WORDS * MARK_CAPACITY))(), ctypes.create_string_buffer(0)
         self._event_cb = ctypes.CFUNCTYPE(I64, I64, I64)(self._on_event)
         self._py_hooks: list = []
         self._mirrored: list = []
@@ -368,6 +376,7 @@ class NativeBoard(PythonBoard):
         st.rx_t, st.rx_b, st.rx_cap = addr(self.rx_t), addr(self.rx_b), RX_CAPACITY
         st.rxlog_t, st.rxlog_b, st.rxlog_cap = addr(self.rxlog_t), addr(self.rxlog_b), RXLOG_CAPACITY
         st.out_t, st.out_b, st.out_cap = addr(self.out_t), addr(self.out_b), OUT_CAPACITY
+        st.mark_w, st.mark_cap = addr(self.mark_w), MARK_CAPACITY
         self.nvic = NativeNvic(st, self.lib, self.st_ptr)
         super()._make_peripherals()
 
@@ -495,6 +504,41 @@ class NativeBoard(PythonBoard):
                 f"the C core cannot hook 0x{addr:08x} (outside the flash, or more than {MAX_SITES} hooks)"
             )
 
+    def mark_ram(self, ranges: list[tuple[int, int]]) -> None:
+        if len(ranges) > MAX_MARK_RANGES:
+            raise ValueError(f"the C core marks at most {MAX_MARK_RANGES} RAM ranges")
+        super().mark_ram(ranges)
+        st = self.st
+        st.n_mark_ranges = len(ranges)
+        for k, (a, n) in enumerate(ranges):
+            st.mark_off[k], st.mark_size[k] = a - RAM_BASE, n
+        st.mark_bytes = sum(n for _, n in ranges)
+        self.mark_b = ctypes.create_string_buffer(max(st.mark_bytes, 1) * MARK_CAPACITY)
+        st.mark_b = ctypes.addressof(self.mark_b)
+
+    def mark(self, addr: int, kind: int) -> None:
+        self._site(addr, K_MARK, kind)
+
+    def take_marks(self) -> list:
+        self._drain_marks()
+        return super().take_marks()
+
+    def _drain_marks(self) -> None:
+        """The C buffer's marks into the Python list."""
+        st = self.st
+        n, size = st.mark_len, st.mark_bytes
+        if not n:
+            return
+        words = np.frombuffer(self.mark_w, np.int64, MARK_WORDS * n).reshape(n, MARK_WORDS).tolist()
+        raw = ctypes.string_at(self.mark_b, size * n)
+        for i, (kind, *counters) in enumerate(words):
+            at, ram = i * size, []
+            for a, n_bytes in self._mark_ram:
+                ram.append((a, raw[at : at + n_bytes]))
+                at += n_bytes
+            self._marks.append(Mark(kind, *counters, tuple(ram)))
+        st.mark_len = 0
+
     def code_hook(self, addr: int, fn) -> None:
         """Call ``fn(uc, address, size, user)`` before the instruction at ``addr`` (dispatched by the C core)."""
         self._py_hooks.append(fn)
@@ -511,6 +555,8 @@ class NativeBoard(PythonBoard):
                 self._plan_ticks()
             elif kind == EV_OUT_FULL:
                 self._drain()
+            elif kind == EV_MARKS_FULL:
+                self._drain_marks()
             elif kind in (EV_MMIO, EV_BITBAND):  # one mirrored page's access, or a bit-band one (any page's bit)
                 st, mmio = self.st, kind == EV_MMIO
                 pages = [self._mirrored[arg]] if mmio else self._mirrored
