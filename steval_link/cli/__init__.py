@@ -5,16 +5,21 @@ from __future__ import annotations
 import contextlib
 import importlib
 import inspect
+import os
 import re
 import shutil
 import sys
 
-import typer
+# One BLAS thread: the arrays here are small, and more threads only spin on the core the emulated board runs on.
+# (Read when numpy loads, so before the imports below.)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from steval_link.cli.app import HELP_OPTION_NAMES
-from steval_link.cli.app import app as _app
-from steval_link.errors import UserError, printable
-from steval_link.stop_signals import interrupt, on_stop_signals
+import typer  # noqa: E402
+
+from steval_link.cli.app import HELP_OPTION_NAMES  # noqa: E402
+from steval_link.cli.app import app as _app  # noqa: E402
+from steval_link.errors import UserError, printable  # noqa: E402
+from steval_link.stop_signals import interrupt, on_stop_signals  # noqa: E402
 
 __all__ = ["main", "register"]
 

@@ -1,10 +1,17 @@
 """The emulated board as a live session's source (``steval emulate``): its USART1 bytes, timed in emulated s since
 power-up; a BROAD trial's truth as ``T`` chunks, the attitude read by symbol as ``S`` chunks. Commands (scripted at
-emulated times, or typed) reach the firmware's RX."""
+emulated times, or typed) reach the firmware's RX.
+
+Unpaced, the board runs in its own thread, a bounded queue ahead of the session: the C core runs without the
+interpreter lock, so the session's pipeline works on one round while the board runs the next. Paced to the wall
+clock (``realtime``), it runs in the session's thread, so that a typed command reaches it at the time shown.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import queue
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -15,6 +22,7 @@ from steval_link import constants as C
 from steval_link.emulation.broad import StepTruth
 from steval_link.emulation.runner import Emulation, EmulationOptions
 from steval_link.emulation.symbol_attitude import SymbolAttitude, elf_filter_variant
+from steval_link.link.capture import SYMBOL_DTYPE
 from steval_link.link.commands import Command
 from steval_link.live.sources import Chunk, LinkInfo, LinkStatus, Record, Source
 
@@ -22,6 +30,8 @@ __all__ = ["EmulatedSource"]
 
 #: emulated seconds of slices per round when not paced to the wall clock (fewer, larger rounds)
 ROUND_S = 0.5
+#: slices the board's thread may run ahead of the session (0.05 emulated s each)
+AHEAD_SLICES = 64
 
 
 class EmulatedSource(Source):
@@ -46,6 +56,10 @@ class EmulatedSource(Source):
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
         self.status = LinkStatus()
         self._closed = False
+        self._stop = threading.Event()  # the board's thread: stop after this slice
+        self._board: threading.Thread | None = None
+        self._queue: queue.Queue = queue.Queue(maxsize=AHEAD_SLICES)
+        self._held: list[Chunk] = []  # recorded after close() stopped the board, not yet handed to the session
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
@@ -111,14 +125,9 @@ class EmulatedSource(Source):
         pending: list[Chunk] = []
         if self._closed:
             return
-        for data, t_s in self.emu.chunks():
-            out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
-            out.append(Chunk("D", data, t_s))
-            for c in out:
-                record(c)  # first: whatever happens next, the bytes are kept
-            self.status.t_link_s = t_s
-            self._truth(record)
-            pending += out
+        for chunks in self._slices() if self.realtime else self._slices_ahead():
+            pending += self._take(chunks)
+            t_s = self.status.t_link_s
             if self.realtime:
                 time.sleep(max(0.0, t_s - (time.monotonic() - t0)))
             elif t_s - t_round < ROUND_S:
@@ -130,30 +139,89 @@ class EmulatedSource(Source):
                 break
         if pending:
             yield pending
-        self._truth(record)  # the steps of the last slice
-        self.status.report = self.emu.report()
+        if self._held:
+            yield self._held
+            self._held = []
 
-    def _truth(self, record: Record) -> None:
+    def _slices(self) -> Iterator[list[Chunk]]:
+        """Each slice's chunks (H, D, then the steps' T and S); at the end an ``end`` chunk with the report."""
+        t_s = None
+        try:
+            for data, t_s in self.emu.chunks():
+                out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
+                yield [*out, Chunk("D", data, t_s), *self._steps(t_s)]
+                if self._stop.is_set():
+                    return
+        except Exception:  # the steps before it, then the error
+            yield self._steps(t_s)
+            raise
+        yield [*self._steps(t_s), Chunk("end", self.emu.report(), t_s)]
+
+    def _slices_ahead(self) -> Iterator[list[Chunk]]:
+        """:meth:`_slices` from the board's own thread."""
+        self._board = threading.Thread(target=self._run_board, name="steval-board", daemon=True)
+        self._board.start()
+        while (item := self._queue.get()) is not None:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+
+    def _run_board(self) -> None:
+        """The board's thread: every slice into the queue, then None (or the error). A session that stopped
+        reading drains the queue in close()."""
+        try:
+            for chunks in self._slices():
+                self._queue.put(chunks)
+        except BaseException as exc:  # noqa: BLE001 - raised in the session's thread
+            self._queue.put(exc)
+            return
+        self._queue.put(None)
+
+    def _steps(self, t_s: float | None) -> list[Chunk]:
+        """The truth rows (T) and the symbol rows (S) of the steps since the last call."""
+        out = []
         rows = self.truth.take() if self.truth is not None else ()
         if len(rows):
-            record(Chunk("T", rows, self.status.t_link_s))
-        symbols = self.symbols.available
-        read = self.symbols.take() if symbols else ()
-        for i in range(0, len(read), 4096):
-            record(Chunk("S", read[i : i + 4096].tobytes(), self.status.t_link_s))
-        self.status.symbol_rows = self.symbols.count if symbols else 0
+            out.append(Chunk("T", rows, t_s))
+        if self.symbols.available:
+            read = self.symbols.take()
+            out += [Chunk("S", read[i : i + 4096].tobytes(), t_s) for i in range(0, len(read), 4096)]
+        return out
+
+    def _take(self, chunks: list[Chunk]) -> list[Chunk]:
+        """Each chunk to the capture first (whatever happens next, it is kept); those for the session."""
+        out = []
+        for c in chunks:
+            if c.kind == "end":
+                self.status.report = c.data
+                continue
+            self._record(c)
+            if c.kind in ("H", "D"):
+                out.append(c)
+            if c.kind == "D":
+                self.status.t_link_s = c.t_s
+            elif c.kind == "S":
+                self.status.symbol_rows += len(c.data) // SYMBOL_DTYPE.itemsize
+        return out
 
     def write(self, frame: bytes, at_s: float | None = None) -> None:
-        """Onto the firmware's RX: at emulated time ``at_s``, or with the next slice (thread-safe)."""
-        if at_s is None:
-            self.emu.send(frame)
-        else:
-            self.emu.send_at(frame, at_s)
+        """Onto the firmware's RX with the board's next slice: at emulated time ``at_s``, or then (thread-safe)."""
+        self.emu.send(frame, at_s)
 
     def close(self) -> None:
+        """Stop the board after its slice; what it made until then goes to the capture (and to the session, if it
+        reads on)."""
         self._closed = True
+        self._stop.set()
         with contextlib.suppress(Exception):  # the capture is closed by the session whatever happens
-            if self._record is not None:
-                self._truth(self._record)  # the steps of the last slice, whatever stopped the session
+            while self._board is not None and (self._board.is_alive() or not self._queue.empty()):
+                try:
+                    item = self._queue.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                if isinstance(item, list):
+                    self._held += self._take(item)
+            if self._record is not None and self._board is None:
+                self._take(self._steps(self.status.t_link_s))  # the steps of the last slice, paced
         if self.emu is not None and self.status.report is None:
             self.status.report = self.emu.report()
