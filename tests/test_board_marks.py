@@ -58,3 +58,16 @@ def test_closing_the_source_while_its_board_runs_ahead_keeps_every_byte_it_made(
     assert 0 < len(data) < len(alone) and alone.startswith(data)
     assert [c for c in recorded if c.kind in "DH"] == handed
     assert source.status.report is not None and source.status.report.usart_bytes == len(data)
+
+
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_a_stop_ends_the_run_at_its_slice_with_or_without_output(reference_elf):
+    import threading
+
+    emu = Emulation(EmulationOptions(elf=reference_elf, scenario="hand-tilts", duration_s=30.0, seed=1))
+    stop = threading.Event()
+    emu.step_end_observers.append(lambda mark: stop.set() if emu.n_steps == 200 else None)
+    for _ in emu.chunks(stop=stop):
+        pass
+    t_s = emu.board.now / C.CPU_HZ
+    assert emu.n_steps >= 200 and t_s < 2.985 + 200 / 161.5 + 0.1  # the slice of step 200, not the 30 s

@@ -145,17 +145,17 @@ class _Globals:
     def has_inputs(self) -> bool:
         return self.acc is not None and self.gyro is not None
 
-    def _start(self, board) -> None:
+    def _start(self, mark) -> None:
         if not self.has_inputs:
             return
-        acc = np.frombuffer(board.ram_read(self.acc, 12), "<f4")
-        gyro = np.frombuffer(board.ram_read(self.gyro, 12), "<f4")
-        thr = int.from_bytes(board.ram_read(self.thr, 2), "little", signed=True) if self.thr is not None else 0
+        acc = np.frombuffer(mark.ram_read(self.acc, 12), "<f4")
+        gyro = np.frombuffer(mark.ram_read(self.gyro, 12), "<f4")
+        thr = int.from_bytes(mark.ram_read(self.thr, 2), "little", signed=True) if self.thr is not None else 0
         self.inputs.append((*acc.tolist(), *gyro.tolist(), thr))
 
-    def _end(self, board) -> None:
-        e = np.frombuffer(board.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [math.nan] * 2
-        q = np.frombuffer(board.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [math.nan] * 4
+    def _end(self, mark) -> None:
+        e = np.frombuffer(mark.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [math.nan] * 2
+        q = np.frombuffer(mark.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [math.nan] * 4
         self.outputs.append((*e, *q))
 
 
@@ -233,9 +233,9 @@ def _emulate(emu: Emulation, what: str, progress: Callable[[float], None] | None
     """Run the emulation to its end: (the USART1 bytes, the emulation's report); its UserError names ``what``."""
     if progress is not None:  # every ≈ 1 s of AHRS steps (an unpatched build sends next to nothing on USART1)
 
-        def on_step(board) -> None:
+        def on_step(mark) -> None:
             if emu.n_steps % 160 == 0:
-                progress(min(board.now / C.CPU_HZ / emu.duration_s, 1.0))
+                progress(min(mark.now / C.CPU_HZ / emu.duration_s, 1.0))
 
         emu.step_end_observers.append(on_step)
     data = bytearray()

@@ -856,7 +856,6 @@ EXPORT int64_t core_add_site(core_t *s, int64_t addr, int64_t kind, int64_t arg)
   return 1;
 }
 
-/* Out of line: the count hook's common path (no site here) then saves no registers. */
 /* A mark: the clock, the counters and the marked RAM bytes, as a Python probe here would read them. */
 static void mark(core_t *s, int64_t kind) {
   if (s->mark_len >= s->mark_cap) ((py_event_t)s->py_event)(EV_MARKS_FULL, 0);
@@ -877,6 +876,7 @@ static void mark(core_t *s, int64_t kind) {
   s->mark_len++;
 }
 
+/* Out of line: the count hook's common path (no site here) then saves no registers. */
 COLD static void dispatch(core_t *s, uint64_t address, uint32_t size) {
   touched(s);
   int64_t lo = 0, hi = s->n_sites;

@@ -30,6 +30,7 @@ import heapq
 import itertools
 import math
 import queue
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -412,13 +413,14 @@ class Emulation:
             raise ValueError("TIM9 has not started")
         return np.asarray(k) * C.TICK_PERIOD_S - self.motion.first_tick_s
 
-    def chunks(self, slice_s: float = 0.05) -> Iterator[tuple[bytes, float]]:
-        """Run to the end; yield (USART1 bytes, emulated time of the last byte, s) every ``slice_s`` emulated."""
+    def chunks(self, slice_s: float = 0.05, stop: threading.Event | None = None) -> Iterator[tuple[bytes, float]]:
+        """Run to the end (or to the slice in which ``stop`` is set); yield (USART1 bytes, emulated time of the last
+        byte, s) of every ``slice_s`` emulated that has some."""
         b = self.board
         end = int(round(self.duration_s * C.CPU_HZ))
         last_byte_t = last_steps = last_progress_t = 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
-        while b.now < end:
+        while b.now < end and not (stop is not None and stop.is_set()):
             self._host_progress()
             t0 = time.perf_counter()
             try:

@@ -38,20 +38,20 @@ class SymbolAttitude:
             emu.step_start_observers.append(self._start)
             emu.step_end_observers.append(self._end)
 
-    def _floats(self, board, name: str, n: int) -> list[float]:
+    def _floats(self, mark, name: str, n: int) -> list[float]:
         a = self.addr[name]
-        return [math.nan] * n if a is None else np.frombuffer(board.ram_read(a, 4 * n), "<f4").tolist()
+        return [math.nan] * n if a is None else np.frombuffer(mark.ram_read(a, 4 * n), "<f4").tolist()
 
-    def _start(self, board) -> None:
+    def _start(self, mark) -> None:
         thr_addr = self.addr["gTHR"]
-        thr = int.from_bytes(board.ram_read(thr_addr, 2), "little", signed=True) if thr_addr is not None else 0
-        self._inputs = (self._floats(board, "acc_ahrs", 3), self._floats(board, "gyro_ahrs", 3), thr)
+        thr = int.from_bytes(mark.ram_read(thr_addr, 2), "little", signed=True) if thr_addr is not None else 0
+        self._inputs = (self._floats(mark, "acc_ahrs", 3), self._floats(mark, "gyro_ahrs", 3), thr)
 
-    def _end(self, board) -> None:
+    def _end(self, mark) -> None:
         acc, gyro, thr = self._inputs or ([math.nan] * 3, [math.nan] * 3, 0)
         read = self._read | (self._read_inputs if self._inputs else 0)
-        q, euler = self._floats(board, "ahrs", 4), self._floats(board, "euler_ahrs", 3)
-        self._rows.append((self.count, board.now / C.CPU_HZ, acc, gyro, thr, q, euler, read))
+        q, euler = self._floats(mark, "ahrs", 4), self._floats(mark, "euler_ahrs", 3)
+        self._rows.append((self.count, mark.now / C.CPU_HZ, acc, gyro, thr, q, euler, read))
         self.count += 1
         self._inputs = None
 

@@ -60,6 +60,8 @@ class EmulatedSource(Source):
         self._board: threading.Thread | None = None
         self._queue: queue.Queue = queue.Queue(maxsize=AHEAD_SLICES)
         self._held: list[Chunk] = []  # recorded after close() stopped the board, not yet handed to the session
+        self._held_error: BaseException | None = None  # the board's error that close() found in the queue
+        self._abandoned = False  # close() stopped draining the queue
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
@@ -142,16 +144,16 @@ class EmulatedSource(Source):
         if self._held:
             yield self._held
             self._held = []
+        if self._held_error is not None:
+            raise self._held_error
 
     def _slices(self) -> Iterator[list[Chunk]]:
         """Each slice's chunks (H, D, then the steps' T and S); at the end an ``end`` chunk with the report."""
-        t_s = None
+        t_s = 0.0
         try:
-            for data, t_s in self.emu.chunks():
+            for data, t_s in self.emu.chunks(stop=self._stop):
                 out = [Chunk("H", sent, t_sent_s) for sent, t_sent_s in self.emu.take_host_bytes()]
                 yield [*out, Chunk("D", data, t_s), *self._steps(t_s)]
-                if self._stop.is_set():
-                    return
         except Exception:  # the steps before it, then the error
             yield self._steps(t_s)
             raise
@@ -171,11 +173,18 @@ class EmulatedSource(Source):
         reading drains the queue in close()."""
         try:
             for chunks in self._slices():
-                self._queue.put(chunks)
+                self._put(chunks)
         except BaseException as exc:  # noqa: BLE001 - raised in the session's thread
-            self._queue.put(exc)
+            self._put(exc)
             return
-        self._queue.put(None)
+        self._put(None)
+
+    def _put(self, item) -> None:
+        """Into the queue, unless close() gave up draining it (a second Ctrl-C)."""
+        while not self._abandoned:
+            with contextlib.suppress(queue.Full):
+                self._queue.put(item, timeout=0.1)
+                return
 
     def _steps(self, t_s: float | None) -> list[Chunk]:
         """The truth rows (T) and the symbol rows (S) of the steps since the last call."""
@@ -213,15 +222,21 @@ class EmulatedSource(Source):
         reads on)."""
         self._closed = True
         self._stop.set()
-        with contextlib.suppress(Exception):  # the capture is closed by the session whatever happens
+        try:
             while self._board is not None and (self._board.is_alive() or not self._queue.empty()):
                 try:
                     item = self._queue.get(timeout=0.1)
                 except queue.Empty:
                     continue
-                if isinstance(item, list):
-                    self._held += self._take(item)
+                if isinstance(item, BaseException):
+                    self._held_error = item
+                elif item is not None:
+                    with contextlib.suppress(Exception):  # (the session says why the capture failed)
+                        self._held += self._take(item)
             if self._record is not None and self._board is None:
-                self._take(self._steps(self.status.t_link_s))  # the steps of the last slice, paced
+                with contextlib.suppress(Exception):
+                    self._take(self._steps(self.status.t_link_s))  # the steps of the last slice, paced
+        finally:
+            self._abandoned = True
         if self.emu is not None and self.status.report is None:
             self.status.report = self.emu.report()
