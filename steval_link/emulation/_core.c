@@ -32,6 +32,8 @@ typedef int (*py_event_t)(int64_t kind, int64_t arg);
 #define EXC_SYSTICK 15
 #define IRQ_USART1 37
 #define FP_FRAME_WORDS 26
+#define FRAME_READS 17
+#define FRAME_WRITES 15
 #define NONE (-1)
 
 /* py_event kinds: TIM9's update event (the tick observers), drain the output buffer, a Sensor_IO_Read the images
@@ -81,7 +83,8 @@ typedef struct {
   void *emu_start, *emu_stop, *reg_read, *reg_write, *reg_read_batch, *reg_write_batch;
   void *py_event;
   uint8_t *ram, *flash;
-  /* register ids: sp lr pc xpsr primask r0 r1 r2 r3; the frame (25) and its write-back (23) */
+  /* register ids: sp lr pc xpsr primask r0 r1 r2 r3; the frame (FRAME_READS: r0-r3 r12 lr pc xpsr d0-d7 fpscr)
+   * and its write-back (FRAME_WRITES: the same without pc and xpsr) */
   int64_t rid[9];
   int32_t frame_ids[26], wframe_ids[24];
   /* clock */
@@ -632,10 +635,15 @@ EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
 
 static void take(core_t *s, int exc) {
   touched(s);
-  uint32_t vals[26];
-  void *ptrs[26];
-  for (int i = 0; i < 26; i++) ptrs[i] = &vals[i];
-  ((reg_batch_t)s->reg_read_batch)(s->uc, s->frame_ids, ptrs, 25);
+  uint32_t vals[26], fpscr = 0;
+  uint64_t d[8]; /* s0-s15 as d0-d7: half the register reads */
+  void *ptrs[FRAME_READS];
+  for (int i = 0; i < 8; i++) ptrs[i] = &vals[i];
+  for (int k = 0; k < 8; k++) ptrs[8 + k] = &d[k];
+  ptrs[16] = &fpscr;
+  ((reg_batch_t)s->reg_read_batch)(s->uc, s->frame_ids, ptrs, FRAME_READS);
+  memcpy(vals + 8, d, sizeof d);
+  vals[24] = fpscr;
   uint32_t sp = reg_get(s, s->SP), xpsr = vals[7], align = sp & 4;
   sp -= align + FP_FRAME_WORDS * 4;
   vals[7] = (xpsr & ~(1u << 9)) | (align ? (1u << 9) : 0);
@@ -688,12 +696,13 @@ static void leave(core_t *s) {
   /* the level-triggered lines again: USART1, TIM9 */
   usart_irq_line(s);
   timer_irq_line(s, &s->tim[0]);
-  uint32_t w[23];
-  void *ptrs[23];
-  for (int i = 0; i < 23; i++) ptrs[i] = &w[i];
-  memcpy(w, raw, 6 * 4);
-  if (extended) memcpy(w + 6, raw + 8, 17 * 4);
-  ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, extended ? 23 : 6);
+  uint64_t d[8];
+  void *ptrs[FRAME_WRITES];
+  for (int i = 0; i < 6; i++) ptrs[i] = &raw[i];
+  memcpy(d, raw + 8, sizeof d);
+  for (int k = 0; k < 8; k++) ptrs[6 + k] = &d[k];
+  ptrs[14] = &raw[24];
+  ((reg_batch_t)s->reg_write_batch)(s->uc, s->wframe_ids, ptrs, extended ? FRAME_WRITES : 6);
   reg_set(s, s->SP, sp);
   reg_set(s, s->XPSR, xpsr & ~(1u << 9));
   reg_set(s, s->PC, raw[6] | 1);

@@ -114,6 +114,10 @@ class PythonBoard:
         self.sensors = sensors
         uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
         uc.ctl_set_cpu_model(A.UC_CPU_ARM_CORTEX_M4)
+        # No exit address: the runs end by the count hook's stop, and unicorn then has no translated block at the
+        # exit to invalidate each time it stops.
+        uc.ctl_exits_enabled(True)
+        uc.ctl_set_exits([])
         self.uc = uc
         self.now = 0  # instructions since reset (= 84 MHz cycles of this model)
         self.stats = BoardStats()

@@ -362,8 +362,9 @@ class NativeBoard(PythonBoard):
         st.ram, st.flash = ctypes.addressof(self.ram), ctypes.addressof(self.flash)
         r = self.regs
         st.rid[:] = [r.SP, r.LR, r.PC, r.XPSR, r.PRIMASK] + r.R
-        st.frame_ids[:25] = r.frame_ids
-        st.wframe_ids[:23] = r.frame_ids[:6] + r.frame_ids[8:]
+        fp = [getattr(A, f"UC_ARM_REG_D{k}") for k in range(8)] + [A.UC_ARM_REG_FPSCR]  # s0-s15 as d0-d7
+        st.frame_ids[:17] = r.frame_ids[:8] + fp
+        st.wframe_ids[:15] = r.frame_ids[:6] + fp
         st.max_slice = C.CPU_HZ // 1000
         st.poll_ids[:] = [getattr(A, f"UC_ARM_REG_R{i}") for i in range(13)] + [r.SP, r.LR, r.XPSR]
         st.poll_skip, st.poll_pc = 1, NONE
