@@ -298,13 +298,10 @@ def test_emulated_stop_event_is_in_emulated_time(monkeypatch, tmp_path, small_ca
             self.motion = SimpleNamespace(name="bench", trial=None)  # scripted motion: no ground truth to keep
             self.duration_s = pieces[-1][1]
 
-        def chunks(self):
+        def chunks(self, stop=None):
             yield from pieces
 
-        def send(self, data):
-            pass
-
-        def send_at(self, data, t_s):
+        def send(self, data, at_s=None):
             pass
 
         def take_host_bytes(self):

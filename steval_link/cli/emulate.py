@@ -8,8 +8,7 @@ from pathlib import Path
 from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli import checks
 from steval_link.cli.app import app, argument, option
-from steval_link.cli.live import check_duration, session_outputs
-from steval_link.cli.outputs import check_input, check_output
+from steval_link.cli.outputs import check_duration, check_input, check_output, session_outputs
 from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError

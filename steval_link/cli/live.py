@@ -12,16 +12,15 @@ from steval_link import constants as C
 from steval_link.cli.app import app
 from steval_link.cli.ble import BLE_LAYOUT_HELP, check_ble_layout
 from steval_link.cli.checks import VariantOption, check_variant, estimator_names, flag_of
-from steval_link.cli.outputs import check_output
+from steval_link.cli.outputs import check_duration, session_outputs
 from steval_link.cli.replay import MapOption, read_map_option
 from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check_view_flags, with_rerun_options
 from steval_link.errors import UserError
 from steval_link.estimators import registry
 from steval_link.link.ble_transport import bleak_backend
-from steval_link.link.capture import resolve_capture_out
 from steval_link.live.session import BLE_SCHEME, LiveOptions, LiveSession, port_source, source_for
 from steval_viewer.live_adapter import ViewerLogger
-from steval_viewer.sink_options import SinkOptions, session_sinks
+from steval_viewer.sink_options import SinkOptions
 
 _PORT_HELP = (
     "Serial port (e.g. /dev/ttyUSB0, COM3), a glob (/dev/ttyUSB*), 'auto': the one that carries frames, or "
@@ -33,21 +32,6 @@ _PROMPT_HELP = (
     "Read commands typed on stdin (set ki 1.0, correction off, reset, status, mode text; see steval "
     "param --help) and send them to the drone over USART1 RX. Default: when stdin is a terminal."
 )
-
-
-def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
-    """The checks of a session's outputs, run once its input is open: the capture and the ``.rrd`` (neither ever
-    overwritten), then the Rerun sinks (``view``: not ``--no-view``)."""
-
-    def check() -> None:
-        options.out = resolve_capture_out(out)
-        if options.out is not None:
-            check_output(options.out, option="--out", overwrite="never")
-        if sinks is not None and sinks.rrd is not None:
-            check_output(sinks.rrd, option="--rrd", overwrite="never")
-        options.sinks = session_sinks(sinks, view=view) if sinks is not None else None
-
-    return check
 
 
 def run_session(session: LiveSession) -> None:
@@ -63,11 +47,6 @@ def run_session(session: LiveSession) -> None:
         os.close(devnull)
     if summary.failures:
         raise typer.Exit(1)  # it ran to its end, but an output (the .rrd) failed on the way
-
-
-def check_duration(duration: float | None) -> None:
-    if duration is not None and not duration > 0:
-        raise UserError(f"--duration must be positive, got {duration}")
 
 
 def check_baud(baud: int) -> None:

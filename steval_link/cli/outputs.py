@@ -10,9 +10,15 @@ import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from steval_link.cli.app import option
 from steval_link.errors import UserError
+from steval_link.link.capture import resolve_capture_out
+from steval_viewer.sink_options import SinkOptions, session_sinks
+
+if TYPE_CHECKING:
+    from steval_link.live.session import LiveOptions
 
 #: option names whose value is a file a command writes
 OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap", "--markdown"})
@@ -154,3 +160,23 @@ def write_atomic(path: Path, option: str, write, *, text: bool = False) -> None:
     with atomic_output(path, option=option) as part:
         with open(part, "w", newline="", encoding="utf-8") if text else open(part, "wb") as f:
             write(f)
+
+
+def check_duration(duration: float | None) -> None:
+    if duration is not None and not duration > 0:
+        raise UserError(f"--duration must be positive, got {duration}")
+
+
+def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
+    """The checks of a session's outputs, run once its input is open: the capture and the ``.rrd`` (neither ever
+    overwritten), then the Rerun sinks (``view``: not ``--no-view``)."""
+
+    def check() -> None:
+        options.out = resolve_capture_out(out)
+        if options.out is not None:
+            check_output(options.out, option="--out", overwrite="never")
+        if sinks is not None and sinks.rrd is not None:
+            check_output(sinks.rrd, option="--rrd", overwrite="never")
+        options.sinks = session_sinks(sinks, view=view) if sinks is not None else None
+
+    return check

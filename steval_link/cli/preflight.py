@@ -12,8 +12,8 @@ from steval_link import constants as C
 from steval_link.analysis.preflight import MOVES, check_preflight
 from steval_link.cli.app import app
 from steval_link.cli.checks import flag_of, require_attitude
-from steval_link.cli.live import check_baud, session_outputs
-from steval_link.cli.outputs import print_warnings
+from steval_link.cli.live import check_baud
+from steval_link.cli.outputs import print_warnings, session_outputs
 from steval_link.errors import UserError
 from steval_link.link.load import read_recording, telemetry_of_recording
 from steval_link.live.session import LiveOptions, LiveSession, port_source
