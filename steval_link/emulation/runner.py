@@ -25,7 +25,7 @@ Host → drone bytes (:meth:`Emulation.send_at`, :meth:`Emulation.send`) reach U
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import heapq
 import itertools
 import math
@@ -120,17 +120,44 @@ class ScenarioMotion:
         self.remote_from_start = trial is None and self._kin.sticks is not None  #: sticks: connected at power-up
         self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
-        self._rendered = functools.lru_cache(maxsize=2)(self._render)  # the remote reads a tick ahead: 2 windows
+        self._total_s = total_s
+        #: rendered windows by (window, first_tick_s): this one and the next (the remote reads a tick ahead)
+        self._windows: dict[tuple[int, float | None], tuple] = {}
+        self._ahead: tuple[tuple[int, float | None], threading.Thread] | None = None  # the next one, rendering
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
 
-    def _render(self, w: int) -> tuple:
-        """Window ``w``: its first tick, the acc and gyro counts, the remote's thr, sticks, armed and joydata."""
+    def _rendered(self, w: int) -> tuple:
+        """Window ``w``, and the next one rendered in a thread meanwhile (numpy works there while the board runs)."""
+        key = (w, self.first_tick_s)
+        if self._ahead is not None and self._ahead[0] == key:
+            self._ahead[1].join()
+        got = self._windows.get(key)
+        if got is None:
+            got = self._windows[key] = self._render(*key)
+        nxt = (w + 1, self.first_tick_s)
+        for old in list(self._windows):
+            if old not in (key, nxt):
+                self._windows.pop(old, None)
+        rendering = self._ahead is not None and self._ahead[0] == nxt and self._ahead[1].is_alive()
+        if nxt not in self._windows and not rendering and nxt[0] * WINDOW_S < self._total_s + 1.0:
+            thread = threading.Thread(target=self._render_ahead, args=(nxt,), name="steval-motion", daemon=True)
+            self._ahead = nxt, thread
+            thread.start()
+        return got
+
+    def _render_ahead(self, key: tuple[int, float | None]) -> None:
+        with contextlib.suppress(Exception):  # (rendered again, and raised, where it is needed)
+            self._windows[key] = self._render(*key)
+
+    def _render(self, w: int, first_tick_s: float | None) -> tuple:
+        """Window ``w``: its first tick, the acc and gyro counts, the remote's thr, sticks, armed and joydata (BROAD:
+        trial time 0 at ``first_tick_s``, else at 1 s)."""
         n = _WINDOW_TICKS
         k0 = w * n
         t = (k0 + np.arange(n)) * C.TICK_PERIOD_S
         rng = np.random.default_rng([self.seed, 3, w])
         if self.trial is not None:
-            t0 = self.first_tick_s if self.first_tick_s is not None else 1.0
+            t0 = first_tick_s if first_tick_s is not None else 1.0
             prof = M.broad_profile(self.trial, t0 + np.clip(t - t0, 0.0, self.trial.t_s[-1]), t0, self._thr_fn)
             acc, gyro = prof.acc_mg, prof.gyro_mdps
         else:
@@ -325,7 +352,6 @@ class Emulation:
         if motion.trial is not None and motion.first_tick_s is None:
             motion.first_tick_s = board.now / C.CPU_HZ
             motion._window = -1  # render again with trial time 0 at this tick
-            motion._rendered.cache_clear()
         if self._joy is None:
             return
         moves, joy = motion.remote_bytes(self.bus.tick_index(board) + 1)
