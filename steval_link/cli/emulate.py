@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from steval_link.analysis.report import estimator_line, estimator_summary
 from steval_link.cli import checks
 from steval_link.cli.app import app, argument, option
 from steval_link.cli.outputs import check_duration, check_input, check_output, session_outputs
@@ -13,12 +12,9 @@ from steval_link.cli.viewer_options import CaptureOutOption, NoViewOption, check
 from steval_link.emulation.runner import EmulationOptions
 from steval_link.errors import UserError
 from steval_link.estimators import registry
-from steval_link.estimators.runner import run_estimator
 from steval_link.link.capture import default_capture_path, resolve_capture_out
 from steval_link.link.commands import parse_script
-from steval_link.link.load import load_telemetry
-from steval_link.live.session import EMULATED_SCHEME, LiveOptions, LiveSession, source_for
-from steval_viewer.live_adapter import ViewerLogger
+from steval_link.live.emulated import EmulatedSource
 from steval_viewer.sink_options import SinkOptions
 
 _Realtime = option(bool, "--realtime", help="Pace the emulation to the wall clock (default: as fast as it runs).")
@@ -128,20 +124,22 @@ def emulate_command(
     emu_options.command_line = checks.command_line(
         ["steval", "emulate", str(elf)], {**emu_options.settings(), "commands": commands}
     )
-    source = source_for(
-        EMULATED_SCHEME,
-        emulation=emu_options,
-        realtime=realtime,
-        commands=_script(commands),
-        variant=variant,
-        variant_from="--variant",
-    )
-    options = LiveOptions(
-        estimators=checks.estimator_names(estimators, registry.LIVE_DEFAULT), prompt=prompt, word=checks.flag_of
-    )
-    # the ELF first (the input, read by the session), then the capture, the .rrd and the viewer
-    check = session_outputs(options, out, rerun, view=not no_view)
-    summary = LiveSession(options, source, viewer_factory=ViewerLogger, check_outputs=check).run()
+    script, names = _script(commands), checks.estimator_names(estimators, registry.LIVE_DEFAULT)
+    source = EmulatedSource(emu_options, realtime=realtime, commands=script, variant=variant, variant_from="--variant")
+    # the ELF first (the input), then the capture, the .rrd and the viewer; the board runs from here (unpaced), so
+    # the session's modules load beside it
+    source.open()
+    try:
+        from steval_link.live.session import LiveOptions, LiveSession  # reason: loaded while the board runs
+        from steval_viewer.live_adapter import ViewerLogger  # reason: the same
+
+        options = LiveOptions(estimators=names, prompt=prompt, word=checks.flag_of)
+        check = session_outputs(options, out, rerun, view=not no_view)
+        session = LiveSession(options, source, viewer_factory=ViewerLogger, check_outputs=check)
+    except BaseException:
+        source.close()
+        raise
+    summary = session.run()
     print("\n".join([summary.line(), *_estimator_lines(summary, options.estimators)]))
     sys.stdout.flush()
 
@@ -159,6 +157,10 @@ def _script(commands: Path | None):
 
 def _estimator_lines(summary, names) -> list[str]:
     """One line per host estimator (``-e``) over the run's capture, as ``steval replay -e`` says it."""
+    from steval_link.analysis.report import estimator_line, estimator_summary  # reason: after the run
+    from steval_link.estimators.runner import run_estimator  # reason: the same
+    from steval_link.link.load import load_telemetry  # reason: the same
+
     path = Path(summary.capture_path)
     if not names or summary.capture_discarded or not path.is_file():
         return []

@@ -308,6 +308,7 @@ class Emulation:
         self._host_sched: list[tuple[int, int, bytes]] = []  # heap of (instruction count, order, bytes) to send
         self._host_sent: list[tuple[bytes, float]] = []  # (bytes, emulated s) gone on the line, not yet taken
         self._host_order = itertools.count()
+        self._hold: tuple[int, threading.Event] | None = None  # (instruction count, the event to wait for there)
         self._install_step_probes()
         self.board.hci_handler = bluenrg
         tick, main = self.elf.addr("uwTick"), self.elf.addr("main")
@@ -332,6 +333,11 @@ class Emulation:
             raise ValueError(f"emulated time must be finite and >= 0, got {at_s}")
         if data:
             self._live_tx.put((bytes(data), at_s))
+
+    def hold(self, t_s: float, until: threading.Event) -> None:
+        """Wait before the slice that passes emulated time ``t_s`` until ``until`` is set (another thread then has
+        queued with :meth:`send` what is due from ``t_s`` on)."""
+        self._hold = int(round(t_s * C.CPU_HZ)), until
 
     def take_host_bytes(self) -> list[tuple[bytes, float]]:
         """The host → drone blocks that went on the line since the last call, with their emulated start times (s)."""
@@ -447,6 +453,9 @@ class Emulation:
         last_byte_t = last_steps = last_progress_t = 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
         while b.now < end and not (stop is not None and stop.is_set()):
+            if self._hold is not None and b.now + slice_cycles >= self._hold[0]:
+                self._hold[1].wait()
+                self._hold = None
             self._host_progress()
             t0 = time.perf_counter()
             try:

@@ -2,9 +2,11 @@
 power-up; a BROAD trial's truth as ``T`` chunks, the attitude read by symbol as ``S`` chunks. Commands (scripted at
 emulated times, or typed) reach the firmware's RX.
 
-Unpaced, the board runs in its own thread, a bounded queue ahead of the session: the C core runs without the
-interpreter lock, so the session's pipeline works on one round while the board runs the next. Paced to the wall
-clock (``realtime``), it runs in the session's thread, so that a typed command reaches it at the time shown.
+Unpaced, the board runs in its own thread from :meth:`EmulatedSource.open` on, a bounded queue ahead of the session:
+the C core runs without the interpreter lock, so the session starts, and its pipeline works on one round, while the
+board runs the next. It waits before the first scripted command's time until the session has sent the script. Paced
+to the wall clock (``realtime``), it runs in the session's thread, so that a typed command reaches it at the time
+shown.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ class EmulatedSource(Source):
         self._held: list[Chunk] = []  # recorded after close() stopped the board, not yet handed to the session
         self._held_error: BaseException | None = None  # the board's error that close() found in the queue
         self._abandoned = False  # close() stopped draining the queue
+        self._script_sent = threading.Event()  # the session sent the scripted commands: the board may pass them
 
     @classmethod
     def from_url(cls, url: str, *, emulation: EmulationOptions, **settings: Any) -> EmulatedSource:
@@ -72,13 +75,23 @@ class EmulatedSource(Source):
         return cls(emulation, **settings)
 
     def open(self, note=None) -> None:
-        self.emu = Emulation(self.emu_options)  # bad ELF / scenario: one line before any file is made
+        """The board (a bad ELF or scenario: one line before any file is made); unpaced, it starts running."""
+        if self.emu is not None:
+            return
+        self.emu = Emulation(self.emu_options)
         self.status.duration_s = self.emu.duration_s
         self.symbols = SymbolAttitude(self.emu)  # observers set before the first step
+        self.truth = StepTruth(self.emu) if self.emu.motion.trial is not None else None  # the truth it is fed
         if self._filter is None:
             found, why = elf_filter_variant(self.emu.elf)
             if found is not None:
                 self._filter = {"variant": found, "from": "firmware ELF", "why": why}
+        if not self.realtime:
+            if self.commands:  # (sent by the session, numbered by its prompt's channel)
+                self.emu.hold(min(t for t, _ in self.commands), self._script_sent)
+            self._board = threading.Thread(target=self._run_board, name="steval-board", daemon=True)
+            self.status.started_s = time.monotonic()
+            self._board.start()
 
     def describe(self) -> LinkInfo:
         emu = self.emu
@@ -117,7 +130,6 @@ class EmulatedSource(Source):
         )
 
     def chunks(self, record: Record, clock) -> Iterator[list[Chunk]]:
-        self.truth = StepTruth(self.emu) if self.emu.motion.trial is not None else None  # the truth it is fed
         self._record = record
         return self._rounds(record)
 
@@ -160,9 +172,8 @@ class EmulatedSource(Source):
         yield [*self._steps(t_s), Chunk("end", self.emu.report(), t_s)]
 
     def _slices_ahead(self) -> Iterator[list[Chunk]]:
-        """:meth:`_slices` from the board's own thread."""
-        self._board = threading.Thread(target=self._run_board, name="steval-board", daemon=True)
-        self._board.start()
+        """:meth:`_slices` from the board's own thread (the session sent its script before the first round)."""
+        self._script_sent.set()
         while (item := self._queue.get()) is not None:
             if isinstance(item, BaseException):
                 raise item
@@ -222,6 +233,7 @@ class EmulatedSource(Source):
         reads on)."""
         self._closed = True
         self._stop.set()
+        self._script_sent.set()  # (a board that waits for the script stops)
         try:
             while self._board is not None and (self._board.is_alive() or not self._queue.empty()):
                 try:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import math
 import os
 import queue
 import signal
@@ -144,7 +145,7 @@ class LiveSession:
             src.close()
             raise
         self.clock = HostClock(wall0_s=capture.header["start_time_unix_s"])
-        t0 = time.monotonic()
+        t0 = min(time.monotonic(), src.status.started_s or math.inf)  # (a board that ran while the session began)
         error, started, stream = None, False, None
         with on_stop_signals(self._on_signal):
             try:

@@ -108,6 +108,7 @@ class LinkStatus:
     live_dropped_bytes: int = 0  # bytes dropped from the live view (in the capture)
     reopen_error: Any = None  # (path, exception): it is back but cannot be opened
     t_link_s: float = 0.0  # the link's own clock (emulated s)
+    started_s: float | None = None  # monotonic time it began running before the session (the emulated board)
     duration_s: float | None = None  # emulated
     report: Any = None  # emulated: the board's report
     wait: bool = False  # keep waiting for frames instead of stopping
