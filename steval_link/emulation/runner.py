@@ -121,7 +121,7 @@ class ScenarioMotion:
         self.sensor = sm.seeded_lsm6dsl(streams.sensor)  #: this seed's LSM6DSL: offsets and noise
         self._window = -1
         self._total_s = total_s
-        #: rendered windows by (window, first_tick_s): this one and the next (the remote reads a tick ahead)
+        #: rendered windows by (window, first_tick_s): this one, the one before and the next
         self._windows: dict[tuple[int, float | None], tuple] = {}
         self._ahead: tuple[tuple[int, float | None], threading.Thread] | None = None  # the next one, rendering
         self.first_tick_s: float | None = None  # for BROAD: trial time 0 at the first TIM9 tick
@@ -134,9 +134,9 @@ class ScenarioMotion:
         got = self._windows.get(key)
         if got is None:
             got = self._windows[key] = self._render(*key)
-        nxt = (w + 1, self.first_tick_s)
-        for old in list(self._windows):
-            if old not in (key, nxt):
+        nxt, keep = (w + 1, self.first_tick_s), {(w - 1, self.first_tick_s), key, (w + 1, self.first_tick_s)}
+        for old in list(self._windows):  # (the remote reads a tick ahead: a run crosses each edge back and forth)
+            if old not in keep:
                 self._windows.pop(old, None)
         rendering = self._ahead is not None and self._ahead[0] == nxt and self._ahead[1].is_alive()
         if nxt not in self._windows and not rendering and nxt[0] * WINDOW_S < self._total_s + 1.0:
