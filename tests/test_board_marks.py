@@ -71,3 +71,28 @@ def test_a_stop_ends_the_run_at_its_slice_with_or_without_output(reference_elf):
         pass
     t_s = emu.board.now / C.CPU_HZ
     assert emu.n_steps >= 200 and t_s < 2.985 + 200 / 161.5 + 0.1  # the slice of step 200, not the 30 s
+
+
+@pytest.mark.slow  # ≥ 0.5 s of CPU: runs with --runslow, as in CI
+def test_a_script_reaches_the_rx_line_at_its_times_however_late_the_session_sends_it(reference_elf):
+    import time
+
+    from steval_link.link.commands import parse_command
+    from steval_link.live.emulated import EmulatedSource
+
+    options = EmulationOptions(elf=reference_elf, scenario="hand-tilts", duration_s=4.0, seed=2)
+    script = [(1.5, parse_command("status")), (2.5, parse_command("set ki 1.0"))]
+    source = EmulatedSource(options, commands=script)
+    source.open()  # the board starts here, and would pass 1.5 s long before the session sends the script
+    time.sleep(1.0)
+    recorded: list = []
+    rounds = source.chunks(recorded.append, None)
+    for i, (t_s, command) in enumerate(script):
+        source.write(command.encode(40 + i), at_s=t_s)
+    for _batch in rounds:
+        pass
+    source.close()
+    assert [(c.t_s, c.data) for c in recorded if c.kind == "H"] == [
+        (t, c.encode(40 + i)) for i, (t, c) in enumerate(script)
+    ]
+    assert source.status.report.emulated_s == pytest.approx(4.0)

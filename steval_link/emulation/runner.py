@@ -139,7 +139,8 @@ class ScenarioMotion:
             if old not in keep:
                 self._windows.pop(old, None)
         rendering = self._ahead is not None and self._ahead[0] == nxt and self._ahead[1].is_alive()
-        if nxt not in self._windows and not rendering and nxt[0] * WINDOW_S < self._total_s + 1.0:
+        unknown = self.trial is not None and self.first_tick_s is None  # (a trial's windows wait for its first tick)
+        if nxt not in self._windows and not rendering and not unknown and nxt[0] * WINDOW_S < self._total_s + 1.0:
             thread = threading.Thread(target=self._render_ahead, args=(nxt,), name="steval-motion", daemon=True)
             self._ahead = nxt, thread
             thread.start()
@@ -456,6 +457,8 @@ class Emulation:
             if self._hold is not None and b.now + slice_cycles >= self._hold[0]:
                 self._hold[1].wait()
                 self._hold = None
+                if stop is not None and stop.is_set():  # (released by a stop, not by the commands)
+                    break
             self._host_progress()
             t0 = time.perf_counter()
             try:

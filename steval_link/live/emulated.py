@@ -54,7 +54,7 @@ class EmulatedSource(Source):
         self.realtime = realtime
         self.commands = list(commands or [])
         self.emu: Emulation | None = None
-        self.truth = self._record = None  # the trial's truth and the capture, once chunks() starts
+        self.truth = self._record = None  # the trial's truth (set by open()) and the capture (by chunks())
         self.symbols: SymbolAttitude | None = None  # what the emulator reads by symbol each step: chunks S
         self.status = LinkStatus()
         self._closed = False
