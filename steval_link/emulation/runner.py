@@ -43,7 +43,7 @@ from steval_link.emulation import motion as M
 from steval_link.emulation import sensor_model as sm
 from steval_link.emulation.board import Board, EmulationError, FirmwareStuck
 from steval_link.emulation.board.core import Mark
-from steval_link.emulation.board.memory_map import RAM_BASE, RAM_SIZE
+from steval_link.emulation.board.memory_map import in_ram
 from steval_link.emulation.broad import BroadTrial, load_trial
 from steval_link.emulation.elf import Elf
 from steval_link.emulation.scenarios import random_streams, scenario
@@ -59,6 +59,12 @@ WATCHDOG_S = 6.0  #: the watchdog: no USART1 byte or AHRS step for this long (em
 #: gTHR, q0..q3, Euler angles in rad)
 STEP_RAM = (("acc_ahrs", 12), ("gyro_ahrs", 12), ("gTHR", 2), ("ahrs", 16), ("euler_ahrs", 12))
 _STEP_START, _STEP_END = 0, 1  # the marks' kinds
+
+
+def _check_time_s(t_s: float) -> None:
+    """ValueError unless ``t_s`` is an emulated time (finite, ≥ 0 s)."""
+    if not math.isfinite(t_s) or t_s < 0:
+        raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
 
 
 @dataclass
@@ -321,8 +327,7 @@ class Emulation:
         """Schedule ``data`` (host → drone) on the RX line at emulated time ``t_s`` (s), after what is before it."""
         if not data:
             return
-        if not math.isfinite(t_s) or t_s < 0:
-            raise ValueError(f"emulated time must be finite and >= 0, got {t_s}")
+        _check_time_s(t_s)
         t = max(int(round(t_s * C.CPU_HZ)), self.board.now)
         self.board.usart1.inject(bytes(data), t)
         heapq.heappush(self._host_sched, (t, next(self._host_order), bytes(data)))
@@ -330,8 +335,8 @@ class Emulation:
     def send(self, data: bytes, at_s: float | None = None) -> None:
         """Queue ``data`` (host → drone) from any thread, for :meth:`send_at` at the start of the next slice: at
         emulated time ``at_s`` (s), or then."""
-        if at_s is not None and not (math.isfinite(at_s) and at_s >= 0):
-            raise ValueError(f"emulated time must be finite and >= 0, got {at_s}")
+        if at_s is not None:
+            _check_time_s(at_s)
         if data:
             self._live_tx.put((bytes(data), at_s))
 
@@ -398,7 +403,7 @@ class Emulation:
         end = e.addr("stv_fw_step_end") or e.addr("GetTargetEulerAngle")
         if start is not None and end is not None:
             ram = [(e.addr(name), n) for name, n in STEP_RAM if e.addr(name) is not None]
-            b.mark_ram([(a, n) for a, n in ram if RAM_BASE <= a and a + n <= RAM_BASE + RAM_SIZE])
+            b.mark_ram([(a, n) for a, n in ram if in_ram(a, n)])
             b.mark(start, _STEP_START)
             b.mark(end, _STEP_END)
 

@@ -43,6 +43,7 @@ from steval_link.emulation.board.memory_map import (
     Peripheral,
     UnmodelledHardware,
     bitband_target,
+    in_ram,
     simple_peripherals,
 )
 from steval_link.emulation.board.scs import Nvic, Scs
@@ -155,7 +156,7 @@ class PythonBoard:
         for addr, data in self.elf.segments:
             if FLASH_BASE <= addr and addr + len(data) <= FLASH_BASE + FLASH_SIZE:
                 ctypes.memmove(flash_ptr + addr - FLASH_BASE, data, len(data))
-            elif RAM_BASE <= addr and addr + len(data) <= RAM_BASE + RAM_SIZE:
+            elif in_ram(addr, len(data)):
                 ctypes.memmove(ctypes.addressof(self.ram) + addr - RAM_BASE, data, len(data))
             else:
                 raise UserError(
@@ -287,7 +288,7 @@ class PythonBoard:
     def mark_ram(self, ranges: list[tuple[int, int]]) -> None:
         """The RAM ranges (address, bytes) each :class:`Mark` copies. Set before the run."""
         for addr, n in ranges:
-            if not (RAM_BASE <= addr and addr + n <= RAM_BASE + RAM_SIZE):
+            if not in_ram(addr, n):
                 raise ValueError(f"0x{addr:08x} (+{n}) is not in RAM")
         self._mark_ram = list(ranges)
 

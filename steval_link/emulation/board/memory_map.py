@@ -11,6 +11,13 @@ from steval_link.errors import UserError
 
 FLASH_BASE, FLASH_SIZE = 0x08000000, 256 * 1024
 RAM_BASE, RAM_SIZE = 0x20000000, 64 * 1024
+
+
+def in_ram(addr: int, n: int) -> bool:
+    """``n`` bytes at ``addr`` lie in the RAM."""
+    return RAM_BASE <= addr and addr + n <= RAM_BASE + RAM_SIZE
+
+
 SYSMEM_BASE, SYSMEM_SIZE = 0x1FFF0000, 0x8000
 #: the 96-bit unique ID (in system memory)
 UID_ADDR = 0x1FFF7A10
