@@ -14,11 +14,10 @@ from typing import TYPE_CHECKING
 
 from steval_link.cli.app import option
 from steval_link.errors import UserError
-from steval_link.link.capture import resolve_capture_out
-from steval_viewer.sink_options import SinkOptions, session_sinks
 
 if TYPE_CHECKING:
     from steval_link.live.session import LiveOptions
+    from steval_viewer.sink_options import SinkOptions
 
 #: option names whose value is a file a command writes
 OUTPUT_OPTIONS = frozenset({"--rrd", "--out", "--csv", "--parquet", "--plot", "--raw", "--mat", "--mcap", "--markdown"})
@@ -170,6 +169,9 @@ def check_duration(duration: float | None) -> None:
 def session_outputs(options: LiveOptions, out: Path | None, sinks: SinkOptions | None = None, *, view: bool = False):
     """The checks of a session's outputs, run once its input is open: the capture and the ``.rrd`` (neither ever
     overwritten), then the Rerun sinks (``view``: not ``--no-view``)."""
+
+    from steval_link.link.capture import resolve_capture_out  # reason: a live command's only
+    from steval_viewer.sink_options import session_sinks  # reason: the same
 
     def check() -> None:
         options.out = resolve_capture_out(out)
