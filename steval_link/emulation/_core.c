@@ -635,15 +635,14 @@ EXPORT void timer_mmio_write(void *uc, uint64_t off, unsigned size, uint64_t val
 
 static void take(core_t *s, int exc) {
   touched(s);
-  uint32_t vals[26], fpscr = 0;
+  uint32_t vals[26];
   uint64_t d[8]; /* s0-s15 as d0-d7: half the register reads */
   void *ptrs[FRAME_READS];
   for (int i = 0; i < 8; i++) ptrs[i] = &vals[i];
   for (int k = 0; k < 8; k++) ptrs[8 + k] = &d[k];
-  ptrs[16] = &fpscr;
+  ptrs[16] = &vals[24]; /* fpscr */
   ((reg_batch_t)s->reg_read_batch)(s->uc, s->frame_ids, ptrs, FRAME_READS);
   memcpy(vals + 8, d, sizeof d);
-  vals[24] = fpscr;
   uint32_t sp = reg_get(s, s->SP), xpsr = vals[7], align = sp & 4;
   sp -= align + FP_FRAME_WORDS * 4;
   vals[7] = (xpsr & ~(1u << 9)) | (align ? (1u << 9) : 0);
