@@ -144,13 +144,21 @@ class ScenarioMotion:
         for old in list(self._windows):  # (the remote reads a tick ahead: a run crosses each edge back and forth)
             if old not in keep:
                 self._windows.pop(old, None)
-        rendering = self._ahead is not None and self._ahead[0] == nxt and self._ahead[1].is_alive()
-        unknown = self.trial is not None and self.first_tick_s is None  # (a trial's windows wait for its first tick)
-        if nxt not in self._windows and not rendering and not unknown and nxt[0] * WINDOW_S < self._total_s + 1.0:
-            thread = threading.Thread(target=self._render_ahead, args=(nxt,), name="steval-motion", daemon=True)
-            self._ahead = nxt, thread
-            thread.start()
+        self._start_ahead(nxt)
         return got
+
+    def render_first(self) -> None:
+        """Window 0 rendered in a thread from now on, while the firmware boots (before its first TIM9 tick)."""
+        self._start_ahead((0, self.first_tick_s))
+
+    def _start_ahead(self, key: tuple[int, float | None]) -> None:
+        """Window ``key`` rendered in a thread, unless it is there, rendering, past the run or a trial's unknown."""
+        rendering = self._ahead is not None and self._ahead[0] == key and self._ahead[1].is_alive()
+        unknown = self.trial is not None and self.first_tick_s is None  # (a trial's windows wait for its first tick)
+        if key not in self._windows and not rendering and not unknown and key[0] * WINDOW_S < self._total_s + 1.0:
+            thread = threading.Thread(target=self._render_ahead, args=(key,), name="steval-motion", daemon=True)
+            self._ahead = key, thread
+            thread.start()
 
     def _render_ahead(self, key: tuple[int, float | None]) -> None:
         with contextlib.suppress(Exception):  # (rendered again, and raised, where it is needed)
@@ -458,6 +466,8 @@ class Emulation:
         end = int(round(self.duration_s * C.CPU_HZ))
         last_byte_t = last_steps = last_progress_t = 0
         slice_cycles = int(min(slice_s, self.options.watchdog_s / 4) * C.CPU_HZ)
+        if b.now == 0:
+            self.motion.render_first()
         while b.now < end and not (stop is not None and stop.is_set()):
             if self._hold is not None and b.now + slice_cycles >= self._hold[0]:
                 self._hold[1].wait()
