@@ -106,7 +106,10 @@ class SensorBus:
             raise UnmodelledHardware(
                 f"Sensor_IO_Read for SPI device {device} (not LSM6DSL/LIS2MDL/LPS22HB) in {board.where()}"
             )
-        sample = self._lsm6dsl_sample(board, reg <= 0x28 < reg + n) if device == LSM6DSL else None
+        # the motion's sample only for a read of STATUS_REG or the outputs (0x1E..0x2D): the others do not see it
+        sample = None
+        if device == LSM6DSL and (reg < 0x2E and reg + n > 0x1E or reg + n > 0x80):
+            sample = self._lsm6dsl_sample(board, reg <= 0x28 < reg + n)
         return dev.read(reg, n, sample)
 
     def lsm6dsl_image(self, board) -> bytes:
