@@ -104,18 +104,30 @@ def test_spawn_again_reuses_the_open_viewer(display, tmp_path):
         assert len(rerun_processes(port)) == 1  # no second window
 
 
-def test_connect_sends_to_a_running_viewer(display, tmp_path):
-    port = free_port()
-    viewer = subprocess.Popen(
-        rerun_command() + ["--port", str(port), "--bind", "127.0.0.1", "--hide-welcome-screen"],
-        env=dict(display.env, RERUN_APP_ONLY="true"),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
+def _listening_viewer(env: dict) -> tuple[subprocess.Popen, int]:
+    """A Rerun viewer started by hand, once it listens (a second try if the first one exits before it listens)."""
+    for _attempt in range(2):
+        port = free_port()
+        viewer = subprocess.Popen(
+            rerun_command() + ["--port", str(port), "--bind", "127.0.0.1", "--hide-welcome-screen"],
+            env=dict(env, RERUN_APP_ONLY="true"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         deadline = time.monotonic() + RETURN_S  # a bound for a loaded machine: the loop ends as soon as it listens
-        while not port_open("127.0.0.1", port, 0.2) and time.monotonic() < deadline:  # listening, not just bound
+        while viewer.poll() is None and time.monotonic() < deadline:
+            if port_open("127.0.0.1", port, 0.2):  # listening, not just bound
+                return viewer, port
             time.sleep(0.1)
+        if viewer.poll() is None:
+            viewer.terminate()
+            pytest.fail(f"the viewer did not listen on port {port} within {RETURN_S:g} s")
+    pytest.fail(f"the viewer exited twice before it listened (last exit code {viewer.returncode})")
+
+
+def test_connect_sends_to_a_running_viewer(display, tmp_path):
+    viewer, port = _listening_viewer(display.env)
+    try:
         done = _steval(["replay", "--connect", _url(port)], display.env, tmp_path)
         assert done.returncode == 0, done.stderr
         rec = viewer_recording(_url(port), timeline="ahrs_step", end=DEMO_LAST_STEP)
