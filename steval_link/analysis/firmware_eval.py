@@ -20,7 +20,7 @@ from steval_link import constants as C
 from steval_link.analysis.report import Coverage, coverage_of, on_rows
 from steval_link.emulation.broad import BroadTrial, StepTruth, TruthRows, score_euler
 from steval_link.emulation.runner import Emulation, EmulationOptions
-from steval_link.emulation.symbol_attitude import elf_filter_variant
+from steval_link.emulation.symbol_attitude import SymbolAttitude, elf_filter_variant
 from steval_link.errors import ParamError, UserError
 from steval_link.estimators import firmware_replay, st_mahony
 from steval_link.estimators.st_mahony import MahonySettings
@@ -130,35 +130,6 @@ def gains_text(settings: MahonySettings | None, thr, *, from_status: bool) -> st
     return f"{kp}, ki {st.ki:g}, dt {st.dt_s * 1e3:g} ms{extra} ({where})"
 
 
-class _Globals:
-    """The firmware's attitude globals read by symbol at each AHRS step's start (inputs) and end (outputs)."""
-
-    def __init__(self, emu: Emulation) -> None:
-        names = ("euler_ahrs", "ahrs", "acc_ahrs", "gyro_ahrs", "gTHR")
-        self.euler, self.ahrs, self.acc, self.gyro, self.thr = (emu.elf.addr(name) for name in names)
-        self.inputs: list[tuple[float, ...]] = []
-        self.outputs: list[tuple[float, ...]] = []
-        emu.step_start_observers.append(self._start)
-        emu.step_end_observers.append(self._end)
-
-    @property
-    def has_inputs(self) -> bool:
-        return self.acc is not None and self.gyro is not None
-
-    def _start(self, mark) -> None:
-        if not self.has_inputs:
-            return
-        acc = np.frombuffer(mark.ram_read(self.acc, 12), "<f4")
-        gyro = np.frombuffer(mark.ram_read(self.gyro, 12), "<f4")
-        thr = int.from_bytes(mark.ram_read(self.thr, 2), "little", signed=True) if self.thr is not None else 0
-        self.inputs.append((*acc.tolist(), *gyro.tolist(), thr))
-
-    def _end(self, mark) -> None:
-        e = np.frombuffer(mark.ram_read(self.euler, 8), "<f4").tolist() if self.euler is not None else [math.nan] * 2
-        q = np.frombuffer(mark.ram_read(self.ahrs, 16), "<f4").tolist() if self.ahrs is not None else [math.nan] * 4
-        self.outputs.append((*e, *q))
-
-
 def _globals_replica(inp: np.ndarray, out: np.ndarray, has_q: bool, first: str | None):
     """(settings, thx, thy, bit-exact per step) of the release bit-exact on the most steps (``first`` wins a tie)."""
     best = None
@@ -192,7 +163,7 @@ def run_firmware(
     emu = Emulation(EmulationOptions(elf=elf, broad=trial, seed=seed))
     elf_variant, _ = elf_filter_variant(emu.elf)
     truth_rec = StepTruth(emu)
-    glob = _Globals(emu)
+    symbols = SymbolAttitude(emu)  # the filter's globals each AHRS step
     label = label or "fw:" + Path(elf).name
     data, report = _emulate(emu, f"{label} on {trial.name}", progress)
     n = min(len(truth_rec.last_ticks), report.ahrs_steps)  # the steps that ran to their end
@@ -204,12 +175,13 @@ def run_firmware(
             )
         raise UserError(f"{elf}: the firmware made no AHRS step in {emu.duration_s:g} s on the emulated board")
     truth = truth_rec.rows(0, n)
+    steps = symbols.take()[:n]
     tel = decode_bytes(bytes(data)) if data else None
     if tel is not None and np.count_nonzero(tel.attitude.exact):
         hint = (elf_variant, "firmware ELF") if elf_variant is not None else None
-        out = _output_of_frames(tel, glob, truth, n, variant, hint)
-    elif glob.euler is not None:
-        out = _output_of_globals(glob, n, variant or elf_variant)
+        out = _output_of_frames(tel, symbols, steps, truth, n, variant, hint)
+    elif symbols.addr["euler_ahrs"] is not None:
+        out = _output_of_globals(symbols, steps, n, variant or elf_variant)
     else:
         raise UserError(
             f"{elf}: no attitude frames on USART1 and no euler_ahrs symbol to read the attitude from "
@@ -263,43 +235,50 @@ class _Output:
     notes: list[str] = field(default_factory=list)
 
 
-def _output_of_frames(tel, glob: _Globals, truth: TruthRows, n: int, variant, hint) -> _Output:
-    """The attitude frames' thx/thy (frame step ``i`` = AHRS step ``i``) and the replica over their inputs."""
+def _has_inputs(symbols: SymbolAttitude) -> bool:
+    """The ELF has the filter's input globals (``acc_ahrs``, ``gyro_ahrs``)."""
+    return symbols.addr["acc_ahrs"] is not None and symbols.addr["gyro_ahrs"] is not None
+
+
+def _output_of_frames(tel, symbols: SymbolAttitude, steps, truth: TruthRows, n: int, variant, hint) -> _Output:
+    """The attitude frames' thx/thy (frame step ``i`` = AHRS step ``i``) and the replica over their inputs;
+    ``steps``: the first ``n`` steps read by symbol (``SYMBOL_DTYPE``)."""
     att = tel.attitude
     rows = np.flatnonzero(np.asarray(att.exact) & (att.step >= 0) & (att.step < n))
-    steps = np.asarray(att.step)[rows]
-    lost = np.asarray(truth.movement, bool) & ~np.isin(np.arange(n), steps)
+    frame_steps = np.asarray(att.step)[rows]
+    lost = np.asarray(truth.movement, bool) & ~np.isin(np.arange(n), frame_steps)
     notes = [f"{int(lost.sum())} movement steps without an attitude frame (not scored)"] if lost.any() else []
-    if glob.has_inputs and len(glob.inputs) >= n:  # frame i is AHRS step i: its inputs say so
-        inp = np.asarray(glob.inputs[:n], np.float32)[:, :3]
-        if not np.array_equal(inp[steps], np.asarray(att.acc_mg, np.float32)[rows]):
+    if _has_inputs(symbols) and len(steps) >= n:  # frame i is AHRS step i: its inputs say so
+        if not np.array_equal(steps["acc_mg"][frame_steps], np.asarray(att.acc_mg, np.float32)[rows]):
             notes.append("the frames' inputs differ from acc_ahrs at the steps counted: the truth may be misaligned")
     rep = firmware_replay.replay_variants(tel, variant=variant, hint=hint).replay
     settings = rep.seeds[0].settings if rep.seeds else None
     return _Output(
         "frames",
-        _on_rows(n, steps, np.asarray(att.thx_rad, _F32)[rows]),
-        _on_rows(n, steps, np.asarray(att.thy_rad, _F32)[rows]),
+        _on_rows(n, frame_steps, np.asarray(att.thx_rad, _F32)[rows]),
+        _on_rows(n, frame_steps, np.asarray(att.thy_rad, _F32)[rows]),
         gains_text(settings, np.asarray(att.thr)[rows], from_status=settings is not None),
         settings,
-        _on_rows(n, steps, rep.thx_rad[rows]),
-        _on_rows(n, steps, rep.thy_rad[rows]),
+        _on_rows(n, frame_steps, rep.thx_rad[rows]),
+        _on_rows(n, frame_steps, rep.thy_rad[rows]),
         int(np.count_nonzero(rep.bit_exact[rows])),
         int(np.count_nonzero(rep.seeded[rows])),
         notes,
     )
 
 
-def _output_of_globals(glob: _Globals, n: int, variant: str | None) -> _Output:
-    """thx/thy read by symbol (``euler_ahrs``) and the replica over the inputs read by symbol, when there are any."""
-    out = np.asarray(glob.outputs[:n], np.float32).reshape(-1, 6)
+def _output_of_globals(symbols: SymbolAttitude, steps, n: int, variant: str | None) -> _Output:
+    """thx/thy read by symbol (``euler_ahrs``) and the replica over the inputs read by symbol, when there are any;
+    ``steps``: the first ``n`` steps read by symbol (``SYMBOL_DTYPE``)."""
+    out = np.column_stack([steps["euler_rad"][:, :2], steps["q_wxyz"]]).astype(np.float32).reshape(-1, 6)
     m = out.shape[0]
-    thr_in = np.asarray(glob.inputs[:n], np.float64).reshape(-1, 7)[:, 6] if glob.has_inputs else []
+    has_inputs = _has_inputs(symbols)
+    thr_in = steps["thr"].astype(np.float64) if has_inputs else []
     res = _Output("globals", _on_rows(n, slice(0, m), out[:, 0]), _on_rows(n, slice(0, m), out[:, 1]),
                   gains_text(None, thr_in, from_status=False))  # fmt: skip
-    if glob.has_inputs and len(glob.inputs) >= m and m:
-        inp = np.asarray(glob.inputs[:m], np.float64)
-        res.settings, px, py, exact = _globals_replica(inp, out, glob.ahrs is not None, variant)
+    if has_inputs and m:
+        inp = np.column_stack([steps["acc_mg"], steps["gyro_mdps"], steps["thr"]]).astype(np.float64)
+        res.settings, px, py, exact = _globals_replica(inp, out, symbols.addr["ahrs"] is not None, variant)
         res.replica_thx, res.replica_thy = _on_rows(n, slice(0, m), px), _on_rows(n, slice(0, m), py)
         res.replica_exact, res.replica_steps = int(np.count_nonzero(exact)), m
     return res
